@@ -1,0 +1,59 @@
+"""The ``avgs`` command line: one sub-command per module in :mod:`avgs.commands`.
+
+Each command module defines ``add_arguments(parser)`` and ``run(args) -> int``; it is
+imported only when its command runs, so ``avgs --help`` starts fast and no command
+pays for another's imports.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+COMMANDS: dict[str, str] = {
+    "synth": "Generate a synthetic scene with physical ground truth in the RWAVS layout.",
+    "train": "Train AV-GS (3D-GS warm-up, then the audio stage) on one scene.",
+    "eval": "Score baselines and checkpoints (MAG, ENV) per scene, environment and overall.",
+    "render": "Binauralise a mono WAV for a listener pose with a trained checkpoint.",
+    "info": "Print what a checkpoint holds.",
+    "bench": "Benchmark speed against error; writes benchmarks/REPORT.md.",
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="avgs", description="AV-GS: novel-view acoustic synthesis with audio-visual Gaussian splatting."
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, help_text in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=f"avgs.commands.{name}")
+        # Arguments are added lazily in main() for the chosen command only.
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser()
+    # Find the command, then let its module add its own arguments.
+    command = next((a for a in argv if not a.startswith("-")), None)
+    if command in COMMANDS:
+        sub_action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        module = importlib.import_module(f"avgs.commands.{command}")
+        module.add_arguments(sub_action.choices[command])
+    args = parser.parse_args(argv)
+    module = importlib.import_module(args._module)
+    try:
+        return int(module.run(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except (FileNotFoundError, ValueError) as exc:
+        # Bad input: one clear line naming the file or value, no traceback.
+        print(f"avgs {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
