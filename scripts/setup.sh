@@ -27,6 +27,12 @@ fi
 
 PY="${PYTHON:-python3.11}"
 command -v "$PY" >/dev/null || PY=python3
+# Debian's own Python ships venv/ensurepip in a separate package.
+if ! "$PY" -c "import ensurepip, venv" 2>/dev/null; then
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends python3-venv python3.11-venv
+fi
 if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv with $($PY --version)"
   "$PY" -m venv .venv
