@@ -1,0 +1,54 @@
+"""Reference methods of the RWAVS benchmark (AV-NeRF, AV-GS Table 1).
+
+Each is a *method* in the sense of :mod:`avgs.evaluate`: a callable
+``(clip, scene) -> binaural [2, T]`` float32. Mono-Energy and Stereo-Energy are oracle
+baselines: they read the ground-truth energy of the clip they predict.
+
+- Mono-Mono: the source copied to both ears.
+- Mono-Energy: the source scaled to the target's mean energy (both channels), both ears.
+- Stereo-Energy: the source scaled, per ear, to that ear's target energy.
+
+Energies are mean squares of the waveforms; a silent source gives silence.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from avgs.data.rwavs import AudioClip, RWAVSScene
+
+
+def _gain(target_energy, source_energy: float) -> np.ndarray:
+    if source_energy <= 0.0:
+        return np.zeros_like(np.asarray(target_energy, dtype=np.float64))
+    return np.sqrt(np.asarray(target_energy, dtype=np.float64) / source_energy)
+
+
+def mono_mono(clip: "AudioClip", scene: "RWAVSScene | None" = None) -> np.ndarray:
+    """The mono source in both ears: ``[2, T]``."""
+    return np.stack([clip.mono, clip.mono]).astype(np.float32)
+
+
+def mono_energy(clip: "AudioClip", scene: "RWAVSScene | None" = None) -> np.ndarray:
+    """The source scaled to the binaural target's mean energy, in both ears: ``[2, T]``."""
+    mono = clip.mono.astype(np.float64)  # [T]
+    g = _gain(np.mean(clip.binaural.astype(np.float64) ** 2), float(np.mean(mono**2)))
+    return np.stack([g * mono, g * mono]).astype(np.float32)
+
+
+def stereo_energy(clip: "AudioClip", scene: "RWAVSScene | None" = None) -> np.ndarray:
+    """The source scaled per ear to that ear's target energy: ``[2, T]``."""
+    mono = clip.mono.astype(np.float64)  # [T]
+    g = _gain(np.mean(clip.binaural.astype(np.float64) ** 2, axis=-1), float(np.mean(mono**2)))  # [2]
+    return (g[:, None] * mono[None, :]).astype(np.float32)
+
+
+BASELINES = {
+    "mono-mono": mono_mono,
+    "mono-energy": mono_energy,
+    "stereo-energy": stereo_energy,
+}
+"The baselines by their command-line names, in the paper's order."

@@ -1,0 +1,41 @@
+"""``avgs eval DATA_ROOT``: MAG and ENV of baselines and checkpoints on the val clips.
+
+Prints a table per scene, per environment and overall (mean of the environment means,
+as RWAVS); ``--json`` writes the same numbers. A scene's environment comes from its
+scene.json ``"environment"``, else the name's prefix before ``_`` or ``-``, else the name.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from avgs.baselines import BASELINES
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data_root", metavar="DATA_ROOT", help="Folder of scenes in the RWAVS layout (with position.json).")
+    parser.add_argument(
+        "--method",
+        action="append",
+        metavar="NAME",
+        help=f"Method to score, repeatable: {', '.join(BASELINES)} or ckpt:PATH (default: the three baselines).",
+    )
+    parser.add_argument("--scene", action="append", metavar="ID", help="Scene folder name, repeatable (default: every scene).")
+    parser.add_argument("--json", metavar="OUT.json", help="Also write the scores as JSON (atomically).")
+    parser.add_argument("--split", choices=("val", "train"), default="val", help="Clips to score (default: val).")
+    parser.add_argument("--device", default="cpu", help="Torch device for checkpoints (cpu or cuda).")
+    parser.add_argument("--no-progress", action="store_true", help="Hide the progress bars.")
+
+
+def run(args: argparse.Namespace) -> int:
+    from avgs import evaluate
+
+    specs = list(dict.fromkeys(args.method or BASELINES))
+    scene_dirs = evaluate.find_scenes(args.data_root, args.scene)
+    methods = {spec: evaluate.load_method(spec, device=args.device) for spec in specs}
+    report = evaluate.evaluate(methods, scene_dirs, split=args.split, progress=not args.no_progress)
+    print(evaluate.format_report(report))
+    if args.json:
+        evaluate.write_json_atomic(args.json, report)
+        print(f"wrote {args.json}")
+    return 0

@@ -1,0 +1,225 @@
+"""Score methods on RWAVS-layout scenes: per scene, per environment and overall.
+
+A *method* is any callable ``(clip: AudioClip, scene: RWAVSScene) -> binaural [2, T]``
+(numpy or torch, T = the clip's length). The baselines of :mod:`avgs.baselines` are
+methods; :class:`CheckpointMethod` turns a trained ``scene.ckpt`` into one. A method may
+also define ``applies_to(scene) -> bool``; scenes it does not apply to are left out of
+its scores (a checkpoint applies to the scene it was trained on).
+
+Aggregation follows RWAVS: a scene's score is the mean over its val clips; an
+environment's is the mean over its scenes; overall is the mean of the environment
+means. A scene's environment is, in order: scene.json's ``"environment"``; else the
+scene name's prefix before the first ``_`` or ``-`` (``office_2`` -> ``office``); else the
+scene name itself (real RWAVS scenes are numbered, so each is its own environment).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import tempfile
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from avgs import metrics
+from avgs.baselines import BASELINES
+from avgs.data.rwavs import AudioClip, RWAVSScene, is_scene_dir
+
+Method = Callable[[AudioClip, RWAVSScene], "np.ndarray | torch.Tensor"]
+METRICS = ("MAG", "ENV")
+CKPT_PREFIX = "ckpt:"
+
+
+class CheckpointMethod:
+    """A trained checkpoint as a method, through :class:`avgs.inference.SceneRenderer`.
+
+    The clip's normalised listener goes to world coordinates with the scene's frame and
+    its yaw to degrees, the renderer's public convention (ARCHITECTURE.md).
+    """
+
+    def __init__(self, path: str | Path, device: str = "cpu"):
+        from avgs.inference import SceneRenderer  # heavy, and only needed here
+
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"{self.path}: checkpoint missing")
+        self.renderer = SceneRenderer.load(self.path, device=device)
+
+    @property
+    def scene_name(self) -> str | None:
+        """The scene the checkpoint was trained on, when the renderer says."""
+        for attr in ("scene_name", "name"):
+            value = getattr(self.renderer, attr, None)
+            if isinstance(value, str) and value:
+                return value
+        return None
+
+    def applies_to(self, scene: RWAVSScene) -> bool:
+        return self.scene_name is None or self.scene_name == scene.name
+
+    def __call__(self, clip: AudioClip, scene: RWAVSScene) -> np.ndarray:
+        listener = scene.frame.to_world(clip.listener)  # [3] world
+        out = self.renderer.render(listener=tuple(float(v) for v in listener), yaw=math.degrees(clip.yaw), mono=clip.mono)
+        return out.binaural
+
+
+def method_names() -> list[str]:
+    """What ``--method`` accepts: the baselines' names and ``ckpt:PATH``."""
+    return [*BASELINES, f"{CKPT_PREFIX}PATH"]
+
+
+def load_method(spec: str, device: str = "cpu") -> Method:
+    """A method from its command-line name: a baseline or ``ckpt:PATH``."""
+    if spec.startswith(CKPT_PREFIX):
+        return CheckpointMethod(spec[len(CKPT_PREFIX) :], device=device)
+    if spec in BASELINES:
+        return BASELINES[spec]
+    raise ValueError(f"unknown method {spec!r}; expected one of {', '.join(method_names())}")
+
+
+def find_scenes(data_root: str | Path, ids: Iterable[str] | None = None) -> list[Path]:
+    """Scene folders under ``data_root`` (those holding transforms files), or the named ones."""
+    root = Path(data_root)
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: data root missing")
+    if ids:
+        dirs = []
+        for scene_id in ids:
+            path = root / scene_id
+            if not is_scene_dir(path):
+                raise FileNotFoundError(f"{path}: no RWAVS scene there (expected transforms_*.json files)")
+            dirs.append(path)
+        return dirs
+    dirs = sorted((p for p in root.iterdir() if is_scene_dir(p)), key=lambda p: _natural_key(p.name))
+    if not dirs:
+        raise ValueError(f"{root}: no scene folders with transforms_*.json files found")
+    return dirs
+
+
+def _natural_key(name: str) -> list:
+    return [int(tok) if tok.isdigit() else tok for tok in re.split(r"(\d+)", name)]
+
+
+def environment_of(scene: RWAVSScene) -> str:
+    """The scene's environment (see the module docstring for the rule)."""
+    if scene.metadata and isinstance(scene.metadata.get("environment"), str) and scene.metadata["environment"]:
+        return scene.metadata["environment"]
+    prefix = re.split(r"[_-]", scene.name, maxsplit=1)[0]
+    return prefix or scene.name
+
+
+def predict(method: Method, clip: AudioClip, scene: RWAVSScene, name: str = "method") -> np.ndarray:
+    """Run ``method`` on one clip and check its output is ``[2, T]`` and finite-typed."""
+    out = method(clip, scene)
+    if isinstance(out, torch.Tensor):
+        out = out.detach().cpu().numpy()
+    out = np.asarray(out, dtype=np.float32)
+    if out.shape != clip.binaural.shape:
+        raise ValueError(f"{name} returned {out.shape} for {scene.name} t={clip.time:g}s; expected {clip.binaural.shape}")
+    return out
+
+
+def score_scene(
+    method: Method, scene: RWAVSScene, name: str = "method", split: str = "val", progress: bool = True
+) -> dict[str, float]:
+    """Mean MAG and ENV of ``method`` over the scene's ``split`` clips."""
+    clips = scene.clips(split)
+    if not clips:
+        raise ValueError(f"{scene.root}: no {split} clips to evaluate")
+    totals = dict.fromkeys(METRICS, 0.0)
+    for clip in tqdm(clips, desc=f"{name} / {scene.name}", unit="clip", leave=False, disable=not progress):
+        pred = predict(method, clip, scene, name)
+        totals["MAG"] += metrics.mag(pred, clip.binaural)
+        totals["ENV"] += metrics.env(pred, clip.binaural)
+    return {k: v / len(clips) for k, v in totals.items()}
+
+
+def _mean(scores: Iterable[dict[str, float]]) -> dict[str, float]:
+    scores = list(scores)
+    return {k: float(np.mean([s[k] for s in scores])) for k in METRICS}
+
+
+def aggregate(scene_scores: dict[str, dict[str, float]], environments: dict[str, str]) -> dict:
+    """``{"scenes", "environments", "overall"}``: overall is the mean of the environment means."""
+    by_env: dict[str, list[dict[str, float]]] = {}
+    for scene_id, score in scene_scores.items():
+        by_env.setdefault(environments[scene_id], []).append(score)
+    env_scores = {env: _mean(scores) for env, scores in by_env.items()}
+    return {"scenes": dict(scene_scores), "environments": env_scores, "overall": _mean(env_scores.values())}
+
+
+def evaluate(
+    methods: dict[str, Method],
+    scene_dirs: Iterable[str | Path],
+    split: str = "val",
+    progress: bool = True,
+) -> dict:
+    """Score every method on every scene it applies to.
+
+    Scenes are loaded one at a time (a real scene's recordings are minutes long).
+    Returns ``{"split", "environments": {scene: env}, "clips": {scene: n},
+    "methods": {name: {"scenes": {scene: {MAG, ENV}}, "environments": {...}, "overall": {...}}}}``.
+    """
+    per_method: dict[str, dict[str, dict[str, float]]] = {name: {} for name in methods}
+    environments: dict[str, str] = {}
+    clips: dict[str, int] = {}
+    for scene_dir in scene_dirs:
+        scene = RWAVSScene(scene_dir)
+        environments[scene.name] = environment_of(scene)
+        clips[scene.name] = len(scene.clips(split))
+        for name, method in methods.items():
+            applies = getattr(method, "applies_to", None)
+            if applies is not None and not applies(scene):
+                continue
+            per_method[name][scene.name] = score_scene(method, scene, name, split, progress)
+    report = {"split": split, "environments": environments, "clips": clips, "methods": {}}
+    for name, scene_scores in per_method.items():
+        if not scene_scores:
+            raise ValueError(f"method {name} applies to none of the scenes {sorted(environments)}")
+        report["methods"][name] = aggregate(scene_scores, environments)
+    return report
+
+
+def format_report(report: dict) -> str:
+    """Plain-text table: one row per scene, per environment and overall; MAG and ENV per method."""
+    names = list(report["methods"])
+    label_w = max([len("overall")] + [len(s) + 6 for s in report["environments"]] + [len(e) + 6 for e in report["environments"].values()])
+    col_w = max(18, *(len(n) + 2 for n in names))
+    head1 = " " * label_w + "".join(f"{n:>{col_w}}" for n in names)
+    head2 = " " * label_w + "".join(f"{'MAG':>{col_w - 9}}{'ENV':>9}" for _ in names)
+    lines = [f"{report['split']} clips: {sum(report['clips'].values())} in {len(report['clips'])} scene(s)", head1, head2]
+
+    def row(label: str, pick) -> str:
+        cells = []
+        for n in names:
+            s = pick(report["methods"][n])
+            cells.append(f"{s['MAG']:>{col_w - 9}.3f}{s['ENV']:>9.4f}" if s else f"{'-':>{col_w - 9}}{'-':>9}")
+        return f"{label:<{label_w}}" + "".join(cells)
+
+    for scene_id in report["environments"]:
+        lines.append(row(f"scene {scene_id}", lambda m, s=scene_id: m["scenes"].get(s)))
+    for env in dict.fromkeys(report["environments"].values()):
+        lines.append(row(f"env   {env}", lambda m, e=env: m["environments"].get(e)))
+    lines.append(row("overall", lambda m: m["overall"]))
+    return "\n".join(lines)
+
+
+def write_json_atomic(path: str | Path, data) -> None:
+    """Write ``data`` as JSON to ``path`` through a temporary file and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(data, f, indent=2)
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
