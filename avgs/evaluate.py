@@ -44,11 +44,11 @@ class CheckpointMethod:
     """
 
     def __init__(self, path: str | Path, device: str = "cpu"):
-        from avgs.inference import SceneRenderer  # heavy, and only needed here
-
         self.path = Path(path)
         if not self.path.is_file():
             raise FileNotFoundError(f"{self.path}: checkpoint missing")
+        from avgs.inference import SceneRenderer  # heavy, and only needed here
+
         self.renderer = SceneRenderer.load(self.path, device=device)
 
     @property
