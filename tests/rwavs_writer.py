@@ -132,6 +132,7 @@ def write_scene(
     poseless_frames: tuple[int, ...] = (),
     unlisted_frames: tuple[int, ...] = (),
     source_world=(4.5, 2.5, 1.2),
+    unscaled_as_frames: bool = False,
     poses: list[tuple[float, float, float]] | None = None,
 ) -> WrittenScene:
     """Write one scene under ``data_root/name`` and (merge) its source into ``data_root/position.json``.
@@ -140,6 +141,8 @@ def write_scene(
     third) is a val frame. ``poses`` optionally fixes (x, y, yaw) per frame in order.
     ``poseless_frames`` are listed without ``camera_to_world``; ``unlisted_frames``
     have an image but no transforms entry. ``metadata`` (a dict) is written as scene.json.
+    ``unscaled_as_frames`` writes the unscaled poses in nerfstudio's transforms format
+    (``frames`` / nested ``transform_matrix``), as some RWAVS copies have them.
     """
     rng = np.random.default_rng(seed)
     data_root = Path(data_root)
@@ -202,7 +205,15 @@ def write_scene(
 
     for split, split_poses in (("train", train), ("val", val)):
         if unscaled:
-            (scene_dir / f"transforms_{split}.json").write_text(json.dumps(camera_path(split_poses, False)))
+            meta = camera_path(split_poses, False)
+            if unscaled_as_frames:
+                frames_list = [
+                    {"file_path": e["file_path"], "transform_matrix": np.reshape(e["camera_to_world"], (4, 4)).tolist()}
+                    for e in meta["camera_path"]
+                    if "camera_to_world" in e
+                ]
+                meta = {"fl_x": 5.0, "fl_y": 5.0, "cx": 3.0, "cy": 2.0, "w": 6, "h": 4, "frames": frames_list}
+            (scene_dir / f"transforms_{split}.json").write_text(json.dumps(meta))
         if scaled:
             (scene_dir / f"transforms_scale_{split}.json").write_text(json.dumps(camera_path(split_poses, True)))
     if metadata is not None:

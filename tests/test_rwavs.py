@@ -174,6 +174,18 @@ def test_scene_json_frame_is_used_and_unscaled_poses_are_normalised(tmp_path):
         np.testing.assert_allclose(clip.listener, (pose.position - [3.0, 2.0, 1.5]) / 3, atol=1e-9)
 
 
+def test_unscaled_poses_in_nerfstudio_frames_format(tmp_path):
+    w = write_scene(tmp_path, "ns", unscaled_as_frames=True, poseless_frames=(4,))
+    scene = RWAVSScene(w.scene_dir)
+    np.testing.assert_allclose(scene.frame.center, w.center, atol=1e-9)
+    assert scene.frame.scale == pytest.approx(w.scale)
+    assert 4.0 not in [c.time for c in scene.train + scene.val]
+    os.remove(w.scene_dir / "transforms_scale_train.json")  # train poses now come from the frames file
+    scene = RWAVSScene(w.scene_dir)
+    for clip, pose in zip(scene.train, [p for p in w.train if p.frame != 4]):
+        np.testing.assert_allclose(clip.listener, w.normalised(pose.position), atol=1e-9)
+
+
 def test_scaled_poses_only_give_an_identity_frame(tmp_path):
     w = write_scene(tmp_path, "s", unscaled=False)
     scene = RWAVSScene(w.scene_dir)

@@ -93,34 +93,42 @@ def _read_json(path: Path, what: str):
 
 
 def read_camera_path(path: Path) -> list[_PoseEntry]:
-    """Posed entries of one transforms file, in file order (entries without a pose are skipped)."""
+    """Posed entries of one transforms file, in file order (entries without a pose are skipped).
+
+    Reads nerfstudio's camera-path format (``{"camera_path": [{"camera_to_world": [16],
+    "file_path"}]}``, RWAVS's) and, as some RWAVS copies store the unscaled poses that
+    way, its transforms format (``{"frames": [{"transform_matrix": [[4] x 4], "file_path"}]}``).
+    """
     meta = _read_json(path, 'a camera path {"camera_path": [{"camera_to_world", "file_path"}, ...]}')
-    entries = meta.get("camera_path") if isinstance(meta, dict) else None
-    if not isinstance(entries, list):
-        raise ValueError(f"{path}: expected a 'camera_path' list of poses")
+    if isinstance(meta, dict) and isinstance(meta.get("camera_path"), list):
+        key, pose_key = "camera_path", "camera_to_world"
+    elif isinstance(meta, dict) and isinstance(meta.get("frames"), list):
+        key, pose_key = "frames", "transform_matrix"
+    else:
+        raise ValueError(f"{path}: expected a 'camera_path' (or nerfstudio 'frames') list of poses")
     out: list[_PoseEntry] = []
-    for i, entry in enumerate(entries):
+    for i, entry in enumerate(meta[key]):
         if not isinstance(entry, dict) or "file_path" not in entry:
-            raise ValueError(f"{path}: camera_path[{i}] has no 'file_path'")
+            raise ValueError(f"{path}: {key}[{i}] has no 'file_path'")
         file_path = str(entry["file_path"])
         stem = Path(file_path.replace("\\", "/")).stem
         try:
             frame_number = int(stem)
         except ValueError:
             raise ValueError(
-                f"{path}: camera_path[{i}] file_path {file_path!r} is not a numbered frame like '00042.png'"
+                f"{path}: {key}[{i}] file_path {file_path!r} is not a numbered frame like '00042.png'"
             ) from None
-        pose = entry.get("camera_to_world")
+        pose = entry.get(pose_key)
         if pose is None:
             continue  # a frame without a pose: skipped, as in RWAVS
         try:
             c2w = np.asarray(pose, dtype=np.float64).reshape(4, 4)
         except (ValueError, TypeError):
             raise ValueError(
-                f"{path}: camera_path[{i}] ({file_path}) camera_to_world must be 16 numbers (row-major 4x4)"
+                f"{path}: {key}[{i}] ({file_path}) {pose_key} must be 16 numbers (row-major 4x4)"
             ) from None
         if not np.all(np.isfinite(c2w)):
-            raise ValueError(f"{path}: camera_path[{i}] ({file_path}) camera_to_world holds NaN or Inf")
+            raise ValueError(f"{path}: {key}[{i}] ({file_path}) {pose_key} holds NaN or Inf")
         out.append(_PoseEntry(frame_number, file_path, c2w))
     return out
 
