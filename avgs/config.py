@@ -97,6 +97,8 @@ class AcousticConfig:
     "Number of learned, circularly interpolated direction embeddings (AV-NeRF)."
     mixture_activation: Literal["relu", "sigmoid"] = "relu"
     "Last activation of the mixture mask: AV-NeRF's unbounded relu or the paper's sigmoid."
+    direction_encoding: Literal["embedding", "fourier"] = "embedding"
+    "Direction feature of B: AV-NeRF's learned circular embedding added per layer, or the paper's concatenated Fourier features."
     use_context: bool = True
     "Condition B on the scene context C (False: the --no-context control)."
     lambda_a: float = 1e-4

@@ -1,0 +1,140 @@
+"""B: the audio binauralizer (AV-NeRF's A-NeRF with the scene context C in place of its
+visual feature; paper appendix "Binauralizer").
+
+Per listener pose and for each of the F = 257 frequency bins it predicts a mixture mask
+``m_m`` and a difference mask ``m_d`` (time-invariant, broadcast over STFT frames)::
+
+    q   = ReLU(Linear(PE(x, y) (+) PE(f)))             42 + 21 -> width
+    q  += Linear(C)                                      scene context (if used)
+    h   = MLP_mix(q) + q                                 4 x (Linear + ReLU), residual
+    m_m = act(Linear(h))                                 act: relu (AV-NeRF) or sigmoid (paper)
+    e   = direction feature of theta / (1.01 pi)
+    g   = MLP_diff(h, e) + h                             4 x (Linear + ReLU), residual
+    m_d = 2 sigmoid(Linear(g)) - 1                       in (-1, 1)
+
+The frequency index is mapped linearly onto [-0.99, 0.99] before encoding. Positional
+encodings use 10 log-spaced frequencies up to 2^9 (:mod:`avgs.acoustics.encodings`).
+
+Direction feature (``direction_encoding``): ``"embedding"`` is AV-NeRF's code, a learned,
+circularly interpolated table of ``direction_embedding`` vectors added after each layer of
+the difference MLP; ``"fourier"`` is the paper's text, a high-frequency transform of
+theta concatenated with the mixture feature. Default chosen by measurement, see
+:data:`avgs.config.AcousticConfig.direction_encoding`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from avgs.acoustics.encodings import encoded_dim, positional_encoding
+
+THETA_SCALE = 1.0 / (1.01 * math.pi)
+"theta (radians, in (-pi, pi]) times this lies strictly inside (-1, 1)."
+
+
+class CircularEmbedding(nn.Module):
+    """A learned table of ``n`` vectors on the circle, linearly interpolated.
+
+    Input ``t`` in [-1, 1] (theta / (1.01 pi)); ``t = -1`` and ``t = 1`` meet, so the
+    feature is continuous across the listener's back.
+    """
+
+    def __init__(self, n: int, dim: int):
+        super().__init__()
+        if n < 2:
+            raise ValueError(f"a circular embedding needs >= 2 entries, got {n}")
+        self.table = nn.Parameter(torch.randn(n, dim) * 0.1)  # [n, dim]
+        self.n = n
+
+    def forward(self, t: torch.Tensor) -> torch.Tensor:
+        """t: [B] -> [B, dim]."""
+        pos = (t.clamp(-1.0, 1.0) + 1.0) * 0.5 * self.n  # [B] in [0, n]
+        lo = torch.floor(pos)
+        w = (pos - lo)[:, None]  # [B, 1]
+        i0 = lo.long() % self.n
+        i1 = (i0 + 1) % self.n
+        return (1.0 - w) * self.table[i0] + w * self.table[i1]
+
+
+def _linear_relu_stack(width: int, n: int, in_dim: int | None = None) -> nn.ModuleList:
+    dims = [in_dim or width] + [width] * n
+    return nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims, dims[1:]))
+
+
+class Binauralizer(nn.Module):
+    """Masks ``m_m, m_d [B, F]`` from listener (x, y), theta and the scene context."""
+
+    def __init__(
+        self,
+        context_dim: int | None,
+        n_freq: int = 257,
+        width: int = 128,
+        pe_frequencies: int = 10,
+        mixture_activation: str = "relu",
+        direction_encoding: str = "embedding",
+        direction_embedding: int = 180,
+        mlp_layers: int = 4,
+    ):
+        super().__init__()
+        if mixture_activation not in ("relu", "sigmoid"):
+            raise ValueError(f"mixture_activation must be 'relu' or 'sigmoid', got {mixture_activation!r}")
+        if direction_encoding not in ("embedding", "fourier"):
+            raise ValueError(f"direction_encoding must be 'embedding' or 'fourier', got {direction_encoding!r}")
+        self.n_freq = n_freq
+        self.pe_frequencies = pe_frequencies
+        self.mixture_activation = mixture_activation
+        self.direction_encoding = direction_encoding
+        self.register_buffer(
+            "freq_query", torch.linspace(-0.99, 0.99, n_freq)[:, None], persistent=False
+        )  # [F, 1]
+        query_dim = encoded_dim(2, pe_frequencies) + encoded_dim(1, pe_frequencies)  # 42 + 21
+        self.query_proj = nn.Linear(query_dim, width)
+        self.context_proj = nn.Linear(context_dim, width) if context_dim else None
+        self.mix_mlp = _linear_relu_stack(width, mlp_layers)
+        self.mix_head = nn.Linear(width, 1)
+        if direction_encoding == "embedding":
+            self.direction = CircularEmbedding(direction_embedding, width)
+            self.diff_mlp = _linear_relu_stack(width, mlp_layers)
+        else:
+            self.direction = None
+            self.diff_mlp = _linear_relu_stack(width, mlp_layers, in_dim=width + encoded_dim(1, pe_frequencies))
+        self.diff_head = nn.Linear(width, 1)
+
+    def forward(
+        self, listener_xy: torch.Tensor, theta: torch.Tensor, context: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """listener_xy: [B, 2] normalised; theta: [B] radians (positive = source on the left);
+        context: [B, C] or None -> (m_m [B, F], m_d [B, F])."""
+        B, F = listener_xy.shape[0], self.n_freq
+        pos = positional_encoding(listener_xy, self.pe_frequencies)  # [B, 42]
+        freq = positional_encoding(self.freq_query, self.pe_frequencies)  # [F, 21]
+        query = torch.cat([pos[:, None, :].expand(B, F, -1), freq[None].expand(B, F, -1)], dim=-1)  # [B, F, 63]
+        q = torch.relu(self.query_proj(query))  # [B, F, W]
+        if self.context_proj is not None:
+            if context is None:
+                raise ValueError("this binauralizer was built with scene context; pass context [B, C]")
+            q = q + self.context_proj(context)[:, None, :]  # [B, F, W]
+        h = q
+        for layer in self.mix_mlp:
+            h = torch.relu(layer(h))
+        h = h + q  # [B, F, W] residual
+        m = self.mix_head(h)[..., 0]  # [B, F]
+        mixture = torch.relu(m) if self.mixture_activation == "relu" else torch.sigmoid(m)
+
+        t = theta * THETA_SCALE  # [B] in (-1, 1)
+        if self.direction is not None:
+            e = self.direction(t)[:, None, :]  # [B, 1, W]
+            g = h
+            for layer in self.diff_mlp:
+                g = torch.relu(layer(g)) + e
+        else:
+            e = positional_encoding(t[:, None], self.pe_frequencies)  # [B, 21]
+            g = torch.cat([h, e[:, None, :].expand(B, F, -1)], dim=-1)
+            for layer in self.diff_mlp:
+                g = torch.relu(layer(g))
+        g = g + h  # [B, F, W] residual
+        difference = 2.0 * torch.sigmoid(self.diff_head(g)[..., 0]) - 1.0  # [B, F]
+        return mixture, difference

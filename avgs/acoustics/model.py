@@ -1,0 +1,139 @@
+"""AVGSModel: G_a + F + B, from listener poses to masks and binaural magnitudes.
+
+All inputs are in the normalised frame, angles in radians. Shapes: B poses, N audio
+points, k vicinity points, F = 257 frequency bins, N_t STFT frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from avgs.acoustics.binauralizer import Binauralizer
+from avgs.acoustics.field import AcousticField
+from avgs.acoustics.points import AudioPoints
+from avgs.acoustics.vicinity import nearest_indices, vicinity_size
+from avgs.config import STFT, AcousticConfig
+
+
+def signed_direction(listener: torch.Tensor, yaw: torch.Tensor, source: torch.Tensor) -> torch.Tensor:
+    """theta [B] = atan2(cross(f, d), dot(f, d)) in xy, f = facing, d = source - listener.
+
+    Positive when the source is on the listener's **left** (ARCHITECTURE.md).
+    listener: [B, 3]; yaw: [B] radians; source: [B, 3] or [3].
+    """
+    d = source[..., :2] - listener[..., :2]  # [B, 2]
+    fx, fy = torch.cos(yaw), torch.sin(yaw)
+    return torch.atan2(fx * d[..., 1] - fy * d[..., 0], fx * d[..., 0] + fy * d[..., 1])
+
+
+@dataclass
+class Masks:
+    """Per-frequency masks and the vicinity sets that produced them."""
+
+    mixture: torch.Tensor  # [B, F]
+    difference: torch.Tensor  # [B, F] in (-1, 1)
+    listener_vicinity: torch.Tensor  # [B, k_L] int64
+    source_vicinity: torch.Tensor  # [B, k_S] or [k_S] int64
+
+
+def apply_masks(mono_mag: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor):
+    """``s_m = |S| m_m``, ``s_l = s_m + s_m m_d``, ``s_r = s_m - s_m m_d``.
+
+    mono_mag: [B, F, N_t]; masks: [B, F] -> three [B, F, N_t].
+    """
+    s_m = mono_mag * mixture[..., None]
+    s_d = s_m * difference[..., None]
+    return s_m, s_m + s_d, s_m - s_d
+
+
+class AVGSModel(nn.Module):
+    """Audio points G_a, acoustic field F and binauralizer B."""
+
+    def __init__(self, points: AudioPoints, cfg: AcousticConfig | None = None, n_freq: int = STFT.n_freq):
+        super().__init__()
+        self.cfg = cfg = cfg or AcousticConfig()
+        self.points = points
+        self.field = (
+            AcousticField(points.alpha_dim, cfg.field_width, cfg.field_layers, cfg.context_dim)
+            if cfg.use_context
+            else None
+        )
+        self.binauralizer = Binauralizer(
+            2 * cfg.context_dim if cfg.use_context else None,
+            n_freq=n_freq,
+            width=cfg.binauralizer_width,
+            pe_frequencies=cfg.pe_frequencies,
+            mixture_activation=cfg.mixture_activation,
+            direction_encoding=cfg.direction_encoding,
+            direction_embedding=cfg.direction_embedding,
+        )
+
+    # -- vicinity and context ------------------------------------------------------------
+
+    @property
+    def vicinity_k(self) -> int:
+        """k = ceil(percentile % of N), for the listener and the source each."""
+        return vicinity_size(self.points.num_points, self.cfg.vicinity_percentile)
+
+    def vicinity(self, positions: torch.Tensor) -> torch.Tensor:
+        """positions [B, 3] (or [3]) -> indices of the k nearest audio points [B, k] (or [k])."""
+        with torch.no_grad():
+            return nearest_indices(self.points.X.detach(), positions, self.vicinity_k)
+
+    def context_at(self, positions: torch.Tensor, indices: torch.Tensor) -> torch.Tensor:
+        """C_i [B, context_dim] of positions [B, 3] from their vicinities [B, k]."""
+        if self.field is None:
+            raise ValueError("this model was trained without scene context (--no-context)")
+        return self.field(self.points.X, self.points.alpha, positions, indices)
+
+    def source_context(self, source: torch.Tensor) -> tuple[torch.Tensor | None, torch.Tensor]:
+        """(C_S [context_dim] or None without context, source vicinity [k]) for source [3]: cacheable."""
+        idx = self.vicinity(source)  # [k]
+        if self.field is None:
+            return None, idx
+        return self.context_at(source[None], idx[None])[0], idx
+
+    # -- masks -------------------------------------------------------------------------
+
+    def masks(
+        self,
+        listener: torch.Tensor,
+        theta: torch.Tensor,
+        source: torch.Tensor,
+        cached_source: tuple[torch.Tensor | None, torch.Tensor] | None = None,
+    ) -> Masks:
+        """listener [B, 3], theta [B] radians, source [3] -> :class:`Masks`.
+
+        ``cached_source`` is :meth:`source_context` of the same source, reused as is.
+        """
+        B = listener.shape[0]
+        listener_idx = self.vicinity(listener)  # [B, k]
+        c_s, source_idx = cached_source if cached_source is not None else self.source_context(source)
+        context = None
+        if self.field is not None:
+            c_l = self.context_at(listener, listener_idx)  # [B, c]
+            context = torch.cat([c_s[None].expand(B, -1), c_l], dim=-1)  # [B, 2c] = C_S (+) C_L
+        mixture, difference = self.binauralizer(listener[:, :2], theta, context)
+        return Masks(mixture, difference, listener_idx, source_idx)
+
+    def forward(self, listener: torch.Tensor, theta: torch.Tensor, source: torch.Tensor, mono_mag: torch.Tensor):
+        """Predicted magnitudes: (s_m, s_l, s_r) each [B, F, N_t], and the :class:`Masks`."""
+        m = self.masks(listener, theta, source)
+        return apply_masks(mono_mag, m.mixture, m.difference), m
+
+
+def binaural_waveform(mono_stft: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor, length: int, stft=STFT):
+    """iSTFT of the masked magnitudes with the source phase.
+
+    mono_stft: [B, F, N_t] complex; masks [B, F] -> [B, 2, length] (channel 0 = left).
+    """
+    from avgs import dsp
+
+    # |S| m e^{i phase(S)} = S m: the masks scale the source spectrum, keeping its phase.
+    gain_l = mixture * (1.0 + difference)  # [B, F]
+    gain_r = mixture * (1.0 - difference)  # [B, F]
+    spec = mono_stft[:, None] * torch.stack([gain_l, gain_r], dim=1)[..., None]  # [B, 2, F, N_t]
+    return dsp.istft(spec, length, stft)

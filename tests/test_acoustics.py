@@ -1,0 +1,174 @@
+"""Unit tests of the audio model's parts on small random tensors with known answers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from avgs.acoustics.binauralizer import Binauralizer, CircularEmbedding
+from avgs.acoustics.encodings import positional_encoding
+from avgs.acoustics.field import AcousticField, unit_directions
+from avgs.acoustics.model import AVGSModel, apply_masks, binaural_waveform, signed_direction
+from avgs.acoustics.points import AudioPoints, alpha_dim, alpha_from_colors, alpha_from_features, parse_alpha_spec
+from avgs.acoustics.vicinity import nearest_indices, vicinity_size
+from avgs.config import AcousticConfig
+from avgs.data.frame import direction_to_source
+from avgs.train.losses import magnitude_loss, volume_loss
+
+
+def test_positional_encoding_widths_and_values():
+    xy = torch.tensor([[0.3, -0.5]])
+    pe = positional_encoding(xy, 10)
+    assert pe.shape == (1, 42)
+    assert positional_encoding(torch.zeros(257, 1), 10).shape == (257, 21)
+    # Layout: input, sin(2^k x) for k=0..9 (frequency-major), then cos; the top frequency is 2^9.
+    assert torch.allclose(pe[0, :2], xy[0])
+    assert torch.allclose(pe[0, 2:4], torch.sin(xy[0]))
+    assert torch.allclose(pe[0, 20:22], torch.sin(512 * xy[0]))
+    assert torch.allclose(pe[0, 22:24], torch.cos(xy[0]))
+
+
+@pytest.mark.parametrize("n, p, k", [(100, 15, 15), (7, 15, 2), (1, 15, 1), (3, 100, 3), (1000, 0.01, 1)])
+def test_vicinity_size(n, p, k):
+    assert vicinity_size(n, p) == k
+
+
+def test_vicinity_matches_brute_force():
+    g = torch.Generator().manual_seed(1)
+    pts = torch.rand(500, 3, generator=g) * 2 - 1
+    q = torch.rand(6, 3, generator=g) * 2 - 1
+    idx = nearest_indices(pts, q, 40)
+    brute = np.argsort(((pts[None] - q[:, None]) ** 2).sum(-1).numpy(), axis=1)[:, :40]
+    assert np.array_equal(np.sort(idx.numpy(), axis=1), np.sort(brute, axis=1))
+    assert torch.equal(nearest_indices(pts, q[0], 40), idx[0])
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 37.0, 90.0, -140.0])
+def test_theta_sign_left_and_right(yaw_deg):
+    yaw = math.radians(yaw_deg)
+    listener = torch.tensor([[0.1, -0.2, 0.0]])
+    facing = np.array([math.cos(yaw), math.sin(yaw)])
+    left = np.array([-facing[1], facing[0]])  # facing rotated +90 degrees (ccw)
+    for side, sign in ((left, 1.0), (-left, -1.0)):
+        src = listener[0].clone()
+        src[:2] += torch.tensor(0.5 * side + 0.2 * facing, dtype=torch.float32)
+        theta = signed_direction(listener, torch.tensor([yaw]), src)
+        assert torch.sign(theta).item() == sign
+        ref = direction_to_source(listener[0].numpy(), yaw, src.numpy())
+        assert theta.item() == pytest.approx(ref, abs=1e-5)
+
+
+def test_zero_distance_gives_finite_directions_and_gradients():
+    X = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], requires_grad=True)
+    origin = torch.zeros(1, 3)
+    g = unit_directions(X[None], origin)  # [1, 2, 3]
+    assert torch.equal(g[0, 0], torch.zeros(3))
+    assert torch.allclose(g[0, 1], torch.tensor([1.0, 0.0, 0.0]))
+    field = AcousticField(alpha_dim=4, width=8, context_dim=5)
+    c = field(X, torch.randn(2, 4), origin, torch.tensor([[0, 1]]))
+    c.sum().backward()
+    assert torch.isfinite(c).all() and torch.isfinite(X.grad).all()
+
+
+def test_alpha_specs():
+    assert parse_alpha_spec("sh+r") == ["sh", "r"]
+    assert alpha_dim("sh+r") == 52 and alpha_dim("s+o") == 4
+    for bad in ("", "sh+x", "r+r"):
+        with pytest.raises(ValueError):
+            parse_alpha_spec(bad)
+    feats = {"sh": torch.randn(3, 48), "r": torch.tensor([[2.0, 0, 0, 0]] * 3)}
+    a = alpha_from_features(feats, "r+sh")
+    assert a.shape == (3, 52) and torch.allclose(a[:, :4], torch.tensor([[1.0, 0, 0, 0]] * 3))
+    # SfM init: DC coefficient holds the colour, 0.5 grey maps to 0.
+    assert torch.allclose(alpha_from_colors(torch.full((2, 3), 0.5), "sh")[:, :3], torch.zeros(2, 3))
+
+
+def test_circular_embedding_meets_itself_at_the_back():
+    emb = CircularEmbedding(12, 4)
+    ends = emb(torch.tensor([-1.0, 1.0]))
+    assert torch.allclose(ends[0], ends[1])
+    mid = emb(torch.tensor([-1.0 + 1.0 / 12]))  # halfway between entries 0 and 1
+    assert torch.allclose(mid[0], 0.5 * (emb.table[0] + emb.table[1]))
+
+
+@pytest.mark.parametrize("encoding", ["embedding", "fourier"])
+@pytest.mark.parametrize("activation", ["relu", "sigmoid"])
+def test_binauralizer_mask_shapes_and_ranges(encoding, activation):
+    torch.manual_seed(0)
+    b = Binauralizer(context_dim=6, width=16, mixture_activation=activation, direction_encoding=encoding)
+    m_m, m_d = b(torch.rand(3, 2), torch.tensor([-3.1, 0.0, 3.1]), torch.randn(3, 6))
+    assert m_m.shape == m_d.shape == (3, 257)
+    assert (m_m >= 0).all() and (m_d.abs() < 1).all()
+    if activation == "sigmoid":
+        assert (m_m <= 1).all()
+
+
+def test_model_end_to_end_shapes_context_and_no_context():
+    torch.manual_seed(0)
+    pts = AudioPoints(torch.rand(200, 3) * 2 - 1, torch.randn(200, 52))
+    model = AVGSModel(pts, AcousticConfig(binauralizer_width=32))
+    assert model.vicinity_k == 30
+    mag = torch.rand(2, 257, 9)
+    (s_m, s_l, s_r), masks = model(torch.rand(2, 3), torch.tensor([0.3, -0.3]), torch.zeros(3), mag)
+    assert s_m.shape == s_l.shape == (2, 257, 9)
+    assert masks.listener_vicinity.shape == (2, 30) and masks.source_vicinity.shape == (30,)
+    assert torch.allclose(s_l + s_r, 2 * s_m, atol=1e-6)
+    # The context depends on the audio points: moving alpha changes the masks.
+    with torch.no_grad():
+        before = model.masks(torch.zeros(1, 3), torch.zeros(1), torch.ones(3)).mixture.clone()
+        model.points.alpha.add_(1.0)
+        after = model.masks(torch.zeros(1, 3), torch.zeros(1), torch.ones(3)).mixture
+    assert not torch.allclose(before, after)
+    # The control has no F and ignores the points entirely.
+    ctl = AVGSModel(AudioPoints(torch.rand(50, 3), torch.randn(50, 52)), AcousticConfig(use_context=False))
+    assert ctl.field is None
+    assert ctl.masks(torch.zeros(1, 3), torch.zeros(1), torch.ones(3)).mixture.shape == (1, 257)
+
+
+def test_binaural_waveform_with_unit_masks_returns_the_source():
+    from avgs import dsp
+
+    x = torch.randn(1, 3000)
+    y = binaural_waveform(dsp.stft(x), torch.ones(1, 257), torch.zeros(1, 257), 3000)
+    assert y.shape == (1, 2, 3000)
+    assert torch.allclose(y[0, 0], x[0], atol=1e-5) and torch.allclose(y[0, 1], x[0], atol=1e-5)
+    # m_d = +0.5: left = 1.5 x, right = 0.5 x.
+    y = binaural_waveform(dsp.stft(x), torch.ones(1, 257), torch.full((1, 257), 0.5), 3000)
+    assert torch.allclose(y[0, 0], 1.5 * x[0], atol=1e-4) and torch.allclose(y[0, 1], 0.5 * x[0], atol=1e-4)
+
+
+def test_magnitude_loss_is_zero_on_the_truth():
+    gt = torch.rand(2, 2, 257, 5)
+    s_m, s_l, s_r = 0.5 * (gt[:, 0] + gt[:, 1]), gt[:, 0], gt[:, 1]
+    assert magnitude_loss(s_m, s_l, s_r, gt).item() == 0.0
+    assert magnitude_loss(s_m + 1.0, s_l, s_r, gt).item() == pytest.approx(1.0)
+
+
+def test_volume_loss_equals_the_direct_product_where_finite():
+    g = torch.Generator().manual_seed(0)
+    alpha = (torch.rand(20, 6, generator=g, dtype=torch.float64) * 3 - 1.5)  # mixed signs
+    direct = alpha.prod(-1).sum()
+    assert volume_loss(alpha).item() == pytest.approx(direct.item(), rel=1e-9)
+    alpha32 = alpha.float().requires_grad_()
+    volume_loss(alpha32).backward()
+    alpha_ref = alpha.float().requires_grad_()
+    alpha_ref.prod(-1).sum().backward()
+    assert torch.allclose(alpha32.grad, alpha_ref.grad, rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float16])
+def test_volume_loss_stays_finite_where_the_direct_product_is_not(dtype):
+    big = torch.full((4, 52), 30.0, dtype=dtype)  # 30^52 overflows both dtypes
+    small = torch.full((4, 52), 1e-2, dtype=dtype)  # 1e-104 underflows to 0
+    with_zero = torch.randn(4, 52).to(dtype)
+    with_zero[:, 3] = 0
+    assert not torch.isfinite(big.prod(-1).sum())
+    for alpha in (big, small, with_zero):
+        a = alpha.clone().requires_grad_()
+        loss = volume_loss(a)
+        loss.backward()
+        assert torch.isfinite(loss) and torch.isfinite(a.grad).all()
+    assert 0.0 <= volume_loss(small).item() < 1e-30  # the true value, 4e-104, rounds to 0 or a subnormal
