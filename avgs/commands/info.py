@@ -1,0 +1,72 @@
+"""``avgs info scene.ckpt [--json]``: what a checkpoint holds (source, bounds, point counts,
+format version, sample rate, training configuration and final metrics)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("checkpoint", metavar="scene.ckpt", help="Checkpoint written by 'avgs train'.")
+    parser.add_argument("--json", action="store_true", help="Print one JSON object instead of text.")
+
+
+def summary(path) -> dict:
+    """Plain-value description of the checkpoint at ``path`` (world coordinates)."""
+    from avgs.checkpoint import config_of, load_checkpoint, stft_of
+    from avgs.data.frame import SceneFrame
+
+    ckpt = load_checkpoint(path)
+    frame = SceneFrame.from_dict(ckpt["frame"])
+    cfg = config_of(ckpt)
+    stft = stft_of(ckpt)
+    g = ckpt.get("gaussians")
+    scene = ckpt["scene"]
+    state = ckpt.get("train_state") or {}
+    return {
+        "path": str(path),
+        "format_version": int(ckpt["format_version"]),
+        "scene": str(scene.get("name", "")),
+        "source_position": [float(v) for v in frame.to_world(ckpt["source"].double().numpy())],
+        "bounds": scene["bounds"].double().tolist(),
+        "frame": frame.to_dict(),
+        "audio_points": int(ckpt["audio_points"]["X"].shape[0]),
+        "alpha_dim": int(ckpt["audio_points"]["alpha"].shape[1]),
+        "gaussians": int(g["means"].shape[0]) if g else 0,
+        "outline_segments": int(scene["outline"].shape[0]) if scene.get("outline") is not None else 0,
+        "sample_rate": int(stft.sample_rate),
+        "stft": {"n_fft": stft.n_fft, "hop_length": stft.hop_length, "win_length": stft.win_length},
+        "iteration": int(state.get("iteration", 0)),
+        "training": {
+            "stage1_iterations": cfg.gaussians.iterations,
+            "iterations": cfg.acoustic.iterations,
+            "init": cfg.init,
+            "alpha_init": cfg.acoustic.alpha_init,
+            "vicinity_percentile": cfg.acoustic.vicinity_percentile,
+            "use_context": cfg.acoustic.use_context,
+            "point_management": cfg.points.enabled,
+            "mixture_activation": cfg.acoustic.mixture_activation,
+            "direction_encoding": cfg.acoustic.direction_encoding,
+            "seed": cfg.seed,
+        },
+        "metrics": {k: v for k, v in dict(ckpt.get("metrics") or {}).items()},
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    info = summary(args.checkpoint)
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    src = ", ".join(f"{v:.3f}" for v in info["source_position"])
+    lo, hi = (", ".join(f"{v:.2f}" for v in row) for row in info["bounds"])
+    print(f"{info['path']}: AV-GS checkpoint, format {info['format_version']}, scene {info['scene']!r}")
+    print(f"  audio points {info['audio_points']} (alpha {info['alpha_dim']} dims), gaussians {info['gaussians']}, outline segments {info['outline_segments']}")
+    print(f"  source ({src}) world; bounds ({lo}) .. ({hi})")
+    print(f"  {info['sample_rate']} Hz, n_fft {info['stft']['n_fft']}, hop {info['stft']['hop_length']}")
+    t = info["training"]
+    print("  trained " + ", ".join(f"{k} {v}" for k, v in t.items()) + f"; at iteration {info['iteration']}")
+    if info["metrics"]:
+        print("  final " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in info["metrics"].items()))
+    return 0

@@ -1,0 +1,73 @@
+"""``avgs render scene.ckpt --listener X Y Z --yaw DEG --input mono.wav --output out.wav``:
+binauralise a mono (or down-mixed stereo) WAV for one listener pose, world coordinates."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("checkpoint", metavar="scene.ckpt", help="Checkpoint written by 'avgs train'.")
+    parser.add_argument("--listener", nargs=3, type=float, required=True, metavar=("X", "Y", "Z"), help="Listener position, world.")
+    parser.add_argument("--yaw", type=float, required=True, metavar="DEG", help="Listener facing, degrees ccw from +x.")
+    parser.add_argument("--source", nargs=3, type=float, metavar=("X", "Y", "Z"), help="Move the source (world; default: the trained one).")
+    parser.add_argument("--input", required=True, metavar="mono.wav", help="Input audio, any length; stereo is down-mixed.")
+    parser.add_argument("--output", required=True, metavar="out.wav", help="Binaural output (2 channels, float WAV).")
+    parser.add_argument("--device", default="cpu", help="Torch device (cpu or cuda).")
+
+
+def read_mono(path: str | Path, sample_rate: int):
+    """``path`` as float32 mono at ``sample_rate`` (down-mixed, resampled with resample_poly)."""
+    from math import gcd
+
+    import numpy as np
+    import soundfile as sf
+    from scipy.signal import resample_poly
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: input audio not found")
+    try:
+        x, sr = sf.read(path, dtype="float32", always_2d=True)  # [T, C]
+    except Exception as exc:
+        raise ValueError(f"{path}: not a readable audio file ({exc})") from None
+    if x.shape[0] == 0:
+        raise ValueError(f"{path}: holds no samples")
+    x = x.mean(axis=1)  # [T]
+    if sr != sample_rate:
+        g = gcd(int(sr), int(sample_rate))
+        x = resample_poly(x, sample_rate // g, int(sr) // g).astype(np.float32)
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{path}: holds NaN or Inf samples")
+    return x
+
+
+def write_wav_atomic(path: str | Path, audio, sample_rate: int) -> None:
+    """``audio [C, T]`` as a float WAV, written to a temp file then renamed."""
+    import soundfile as sf
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".wav", dir=path.parent)
+    os.close(fd)
+    try:
+        sf.write(tmp, audio.T, sample_rate, subtype="FLOAT", format="WAV")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def run(args: argparse.Namespace) -> int:
+    from avgs.inference import SceneRenderer
+
+    renderer = SceneRenderer.load(args.checkpoint, device=args.device)
+    mono = read_mono(args.input, renderer.sample_rate)
+    out = renderer.render(args.listener, args.yaw, mono, source=args.source)
+    write_wav_atomic(args.output, out.binaural, renderer.sample_rate)
+    side = "left" if out.theta > 0 else "right" if out.theta < 0 else "ahead"
+    print(f"wrote {args.output} ({out.binaural.shape[1]} samples, source {abs(out.theta):.0f} deg to the {side})")
+    return 0

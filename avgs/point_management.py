@@ -1,0 +1,153 @@
+"""Audio-aware point management (paper §3.3) as a small strategy object, like gsplat's.
+
+The caller owns the training loop and calls, per iteration::
+
+    manager.step_post_backward(points, vicinity_indices)   # after loss.backward()
+    optimizer.step()
+    added = manager.maybe_densify(step, points, optimizer)
+    removed = manager.maybe_prune(step, points, optimizer)
+
+Densification: every ``densify_every`` iterations, each point that was in a vicinity
+since the last densification gets its gradient magnitude ``||dL/dX||`` averaged over the
+iterations it was seen; those above tau_g spawn one new point drawn from a Gaussian around
+their position, with random alpha (drawn from N(0, std of alpha per dimension)).
+Pruning: every ``prune_every`` iterations, Open3D radius outlier removal (fewer than
+``prune_min_neighbors`` neighbours within ``prune_radius``, normalised units).
+Adding or removing points also grows or slices the optimizer's per-parameter state.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from avgs.acoustics.points import AudioPoints
+from avgs.config import PointManagementConfig
+
+
+def _replace_rows(optimizer: torch.optim.Optimizer | None, old: nn.Parameter, new: nn.Parameter, keep: torch.Tensor | None, n_new: int) -> None:
+    """Point ``optimizer`` at ``new`` in place of ``old``, carrying its state.
+
+    Rows ``keep`` (bool [N_old] or None for all) of every per-row state tensor are kept, then
+    ``n_new`` zero rows appended (fresh Adam moments for spawned points).
+    """
+    if optimizer is None:
+        return
+    for group in optimizer.param_groups:
+        for i, p in enumerate(group["params"]):
+            if p is not old:
+                continue
+            group["params"][i] = new
+            state = optimizer.state.pop(old, None)
+            if state is None:
+                continue
+            for key, value in state.items():
+                if isinstance(value, torch.Tensor) and value.dim() > 0 and value.shape[0] == old.shape[0]:
+                    if keep is not None:
+                        value = value[keep]
+                    if n_new:
+                        value = torch.cat([value, value.new_zeros((n_new, *value.shape[1:]))])
+                    state[key] = value
+            optimizer.state[new] = state
+
+
+def update_points(
+    points: AudioPoints,
+    optimizer: torch.optim.Optimizer | None,
+    keep: torch.Tensor | None = None,
+    new_X: torch.Tensor | None = None,
+    new_alpha: torch.Tensor | None = None,
+) -> None:
+    """Keep rows ``keep`` (bool [N]) of G_a, append ``new_X [M,3]``/``new_alpha [M,D]``, and update ``optimizer``."""
+    X, alpha = points.X.detach(), points.alpha.detach()
+    if keep is not None:
+        X, alpha = X[keep], alpha[keep]
+    n_new = 0
+    if new_X is not None:
+        n_new = len(new_X)
+        X = torch.cat([X, new_X.to(X)])
+        alpha = torch.cat([alpha, new_alpha.to(alpha)])
+    X_param, alpha_param = nn.Parameter(X.contiguous()), nn.Parameter(alpha.contiguous())
+    _replace_rows(optimizer, points.X, X_param, keep, n_new)
+    _replace_rows(optimizer, points.alpha, alpha_param, keep, n_new)
+    points.set_points(X_param, alpha_param)
+
+
+class AudioPointManager:
+    """Accumulates vicinity gradients; densifies and prunes G_a on schedule."""
+
+    def __init__(self, cfg: PointManagementConfig, total_iterations: int, generator: torch.Generator | None = None):
+        self.cfg = cfg
+        self.densify_until = int(cfg.densify_until_fraction * total_iterations)
+        self.generator = generator or torch.Generator().manual_seed(0)
+        self.grad_sum: torch.Tensor | None = None  # [N]
+        self.count: torch.Tensor | None = None  # [N]
+
+    def _reset(self, n: int, device) -> None:
+        self.grad_sum = torch.zeros(n, device=device)
+        self.count = torch.zeros(n, device=device)
+
+    def step_post_backward(self, points: AudioPoints, vicinity: torch.Tensor) -> None:
+        """Accumulate ``||dL/dX||`` of the points in ``vicinity`` (any-shaped int64 indices)."""
+        if not self.cfg.enabled or points.X.grad is None:
+            return
+        n = points.num_points
+        if self.grad_sum is None or len(self.grad_sum) != n:
+            self._reset(n, points.X.device)
+        idx = torch.unique(vicinity.reshape(-1))
+        self.grad_sum[idx] += points.X.grad[idx].norm(dim=-1)
+        self.count[idx] += 1
+
+    def maybe_densify(self, step: int, points: AudioPoints, optimizer: torch.optim.Optimizer | None) -> int:
+        """At densification steps, spawn points around significant ones; returns how many were added."""
+        cfg = self.cfg
+        if not cfg.enabled or step <= 0 or step % cfg.densify_every or step > self.densify_until:
+            return 0
+        if self.grad_sum is None or len(self.grad_sum) != points.num_points:
+            return 0
+        mean_grad = self.grad_sum / self.count.clamp_min(1)  # [N]
+        significant = torch.nonzero((self.count > 0) & (mean_grad > cfg.grad_threshold)).reshape(-1)
+        room = cfg.max_points - points.num_points
+        self._reset(points.num_points, points.X.device)
+        if len(significant) == 0 or room <= 0:
+            return 0
+        if len(significant) > room:  # keep the strongest
+            significant = significant[torch.topk(mean_grad[significant], room).indices]
+        g = self.generator
+        X = points.X.detach()
+        alpha = points.alpha.detach()
+        noise = torch.randn(len(significant), 3, generator=g).to(X) * cfg.spawn_std
+        new_X = X[significant] + noise  # [M, 3]
+        alpha_std = alpha.std(dim=0, keepdim=True) if len(alpha) > 1 else torch.ones_like(alpha[:1])
+        new_alpha = torch.randn(len(significant), alpha.shape[1], generator=g).to(alpha) * alpha_std  # [M, D]
+        update_points(points, optimizer, None, new_X, new_alpha)
+        self._reset(points.num_points, X.device)
+        return len(significant)
+
+    def maybe_prune(self, step: int, points: AudioPoints, optimizer: torch.optim.Optimizer | None) -> int:
+        """At pruning steps, remove radius outliers (Open3D); returns how many were removed.
+
+        Never removes every point: if the test would reject them all, nothing is pruned.
+        """
+        cfg = self.cfg
+        if not cfg.enabled or step <= 0 or step % cfg.prune_every:
+            return 0
+        keep = radius_inliers(points.X.detach().cpu(), cfg.prune_min_neighbors, cfg.prune_radius)
+        n_keep = int(keep.sum())
+        if n_keep == points.num_points or n_keep == 0:
+            return 0
+        removed = points.num_points - n_keep
+        update_points(points, optimizer, keep.to(points.X.device))
+        self._reset(points.num_points, points.X.device)
+        return removed
+
+
+def radius_inliers(X: torch.Tensor, min_neighbors: int, radius: float) -> torch.Tensor:
+    """bool [N]: points with at least ``min_neighbors`` others within ``radius`` (Open3D)."""
+    import open3d as o3d  # heavy; only when pruning
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(X.double().numpy()))
+    _, kept = cloud.remove_radius_outlier(nb_points=int(min_neighbors), radius=float(radius))
+    keep = torch.zeros(len(X), dtype=torch.bool)
+    keep[torch.as_tensor(list(kept), dtype=torch.long)] = True
+    return keep

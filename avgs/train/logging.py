@@ -1,0 +1,84 @@
+"""Training logs: a JSON-lines file (one record per line, appended as training goes) and
+a PNG of the loss and point-count curves (matplotlib, Agg back end, written atomically)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+
+def log_paths(checkpoint: str | Path) -> tuple[Path, Path]:
+    """(``<ckpt>.log.jsonl``, ``<ckpt>.curves.png``) next to the checkpoint."""
+    ckpt = Path(checkpoint)
+    return ckpt.with_name(ckpt.name + ".log.jsonl"), ckpt.with_name(ckpt.name + ".curves.png")
+
+
+def _plain(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+class JsonLinesLog:
+    """Append-only JSON-lines log that also keeps its records in memory."""
+
+    def __init__(self, path: str | Path, records: list[dict] | None = None):
+        """Start ``path`` afresh with ``records`` (e.g. the history of a resumed checkpoint)."""
+        self.path = Path(path)
+        self.records: list[dict] = [dict(r) for r in (records or [])]
+        _atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in self.records))
+
+    def write(self, record: dict) -> None:
+        record = {k: _plain(v) for k, v in record.items()}
+        self.records.append(record)
+        with open(self.path, "a", encoding="utf-8") as f:
+            f.write(json.dumps(record) + "\n")
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def plot_curves(records: list[dict], path: str | Path) -> Path:
+    """Loss (log scale), validation MAG and audio point count against the iteration."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    path = Path(path)
+    fig = Figure(figsize=(10, 3.2), dpi=100)
+    axes = fig.subplots(1, 3)
+
+    def series(stage: str, key: str):
+        pts = [(r["iteration"], r[key]) for r in records if r.get("stage") == stage and r.get(key) is not None]
+        return [p[0] for p in pts], [p[1] for p in pts]
+
+    for stage, label in (("stage1", "stage 1 (RGB)"), ("stage2", "stage 2 (audio)")):
+        x, y = series(stage, "loss")
+        if x:
+            axes[0].plot(x, y, label=label)
+    axes[0].set_yscale("log")
+    axes[0].set_title("loss")
+    axes[0].legend(fontsize=7)
+    x, y = series("stage2", "val_mag")
+    axes[1].plot(x, y, "o-")
+    axes[1].set_title("validation MAG")
+    x, y = series("stage2", "points")
+    axes[2].plot(x, y)
+    axes[2].set_title("audio points")
+    for ax in axes:
+        ax.set_xlabel("iteration")
+    fig.tight_layout()
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
+    os.close(fd)
+    fig.savefig(tmp, format="png")
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,142 @@
+"""Stage 2: train G_a, F and B on the audio clips of one scene (paper §3.3).
+
+:class:`Stage2Trainer` owns the optimizer, the learning-rate schedule, the batch sampler
+and the point manager; the pipeline (:mod:`avgs.train.pipeline`) drives it and saves.
+All training magnitudes are precomputed once (:class:`avgs.data.rwavs.ClipDataset`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from avgs.acoustics.model import AVGSModel, binaural_waveform
+from avgs.config import TrainConfig
+from avgs.point_management import AudioPointManager
+from avgs.train.losses import magnitude_loss, total_loss, volume_loss
+
+
+def lr_factor(step: int, total: int, warmup_fraction: float, final_fraction: float) -> float:
+    """Linear warm-up over ``warmup_fraction`` of ``total`` steps, then linear decay to ``final_fraction``."""
+    warm = max(1, int(round(warmup_fraction * total)))
+    if step < warm:
+        return (step + 1) / warm
+    rest = max(1, total - warm)
+    t = min(1.0, (step - warm) / rest)
+    return 1.0 - (1.0 - final_fraction) * t
+
+
+class Stage2Trainer:
+    """One optimisation step at a time; resumable through :meth:`state_dict`."""
+
+    def __init__(self, model: AVGSModel, train_data, cfg: TrainConfig, device: str | torch.device = "cpu"):
+        self.model = model.to(device)
+        self.data = train_data
+        self.cfg = cfg
+        self.device = torch.device(device)
+        ac = cfg.acoustic
+        self.total = int(ac.iterations)
+        networks = [p for m in (model.field, model.binauralizer) if m is not None for p in m.parameters()]
+        self.optimizer = torch.optim.Adam(
+            [
+                {"params": networks, "lr": ac.lr, "name": "networks"},
+                {"params": [model.points.X], "lr": ac.lr_points, "name": "X"},
+                {"params": [model.points.alpha], "lr": ac.lr_alpha, "name": "alpha"},
+            ]
+        )
+        self.base_lrs = [g["lr"] for g in self.optimizer.param_groups]
+        self.generator = torch.Generator().manual_seed(cfg.seed)  # batch sampling
+        self.manager = AudioPointManager(
+            cfg.points, self.total, generator=torch.Generator().manual_seed(cfg.seed + 1)
+        )
+        self.iteration = 0
+        self._to_device = {
+            k: v.to(self.device) for k, v in (("listener", train_data.listener), ("theta", train_data.theta))
+        }
+        self._source = train_data.source.to(self.device)  # [3]
+        self._mono_mag = train_data.mono_stft.abs().to(self.device)  # [C, F, N_t]
+        self._binaural_mag = train_data.binaural_mag.to(self.device)  # [C, 2, F, N_t]
+
+    def _set_lr(self) -> None:
+        ac = self.cfg.acoustic
+        f = lr_factor(self.iteration, self.total, ac.warmup_fraction, ac.final_lr_fraction)
+        for group, base in zip(self.optimizer.param_groups, self.base_lrs):
+            group["lr"] = base * (f if group.get("name") == "networks" else 1.0)
+
+    def step(self) -> dict:
+        """One iteration on a random batch; returns the losses and point bookkeeping."""
+        ac = self.cfg.acoustic
+        self.model.train()
+        self._set_lr()
+        idx = torch.randint(len(self.data), (min(ac.batch_size, len(self.data)),), generator=self.generator)
+        idx = idx.to(self.device)
+        listener = self._to_device["listener"][idx]  # [B, 3]
+        theta = self._to_device["theta"][idx]  # [B]
+        (s_m, s_l, s_r), masks = self.model(listener, theta, self._source, self._mono_mag[idx])
+        loss_m = magnitude_loss(s_m, s_l, s_r, self._binaural_mag[idx])
+        vicinity = torch.cat([masks.listener_vicinity.reshape(-1), masks.source_vicinity.reshape(-1)])
+        loss_v = volume_loss(self.model.points.alpha[torch.unique(vicinity)])
+        loss = total_loss(loss_m, loss_v, ac.lambda_a)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"stage 2: non-finite loss at iteration {self.iteration}")
+        self.manager.step_post_backward(self.model.points, vicinity)
+        self.optimizer.step()
+        self.iteration += 1
+        added = self.manager.maybe_densify(self.iteration, self.model.points, self.optimizer)
+        removed = self.manager.maybe_prune(self.iteration, self.model.points, self.optimizer)
+        return {
+            "loss": loss.item(),
+            "loss_m": loss_m.item(),
+            "loss_v": loss_v.item(),
+            "points": self.model.points.num_points,
+            "added": added,
+            "removed": removed,
+            "lr": self.optimizer.param_groups[0]["lr"],
+        }
+
+    @torch.no_grad()
+    def predict(self, data, chunk: int = 16) -> torch.Tensor:
+        """Binaural waveforms [C, 2, T] for every clip of ``data`` (a ClipDataset)."""
+        self.model.eval()
+        source = data.source.to(self.device)
+        cached = self.model.source_context(source)
+        out = []
+        for i in range(0, len(data), chunk):
+            sl = slice(i, i + chunk)
+            m = self.model.masks(data.listener[sl].to(self.device), data.theta[sl].to(self.device), source, cached)
+            spec = data.mono_stft[sl].to(self.device)
+            out.append(binaural_waveform(spec, m.mixture, m.difference, data.mono.shape[-1], self.cfg.stft).cpu())
+        return torch.cat(out)
+
+    def evaluate(self, data) -> dict:
+        """Validation MAG and ENV (DESIGN.md §5, :mod:`avgs.metrics`), mean over clips."""
+        from avgs.metrics import env, mag
+
+        pred = self.predict(data).numpy()  # [C, 2, T]
+        gt = data.binaural.numpy()  # [C, 2, T]
+        mags = [mag(p, g, self.cfg.stft) for p, g in zip(pred, gt)]
+        envs = [env(p, g) for p, g in zip(pred, gt)]
+        return {"val_mag": float(np.mean(mags)), "val_env": float(np.mean(envs))}
+
+    # -- resume ------------------------------------------------------------------------
+
+    def state_dict(self) -> dict:
+        """Plain tensors and values (checkpoint-safe) to continue training exactly."""
+        return {
+            "iteration": self.iteration,
+            "optimizer": self.optimizer.state_dict(),
+            "generator": self.generator.get_state(),
+            "manager_generator": self.manager.generator.get_state(),
+            "torch_rng": torch.get_rng_state(),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.iteration = int(state["iteration"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.generator.set_state(state["generator"])
+        self.manager.generator.set_state(state["manager_generator"])
+        torch.set_rng_state(state["torch_rng"])
