@@ -145,6 +145,8 @@ class PointManagementConfig:
     "Radius of the outlier test in normalised scene units (paper: 0.1)."
     max_points: int = 60_000
     "Upper bound on the number of audio points."
+    prune_max_fraction: float = 0.5
+    "Skip a pruning step that would remove more than this fraction of the points (a sparse G_a, not outliers)."
 
 
 @dataclass

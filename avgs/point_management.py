@@ -127,14 +127,17 @@ class AudioPointManager:
     def maybe_prune(self, step: int, points: AudioPoints, optimizer: torch.optim.Optimizer | None) -> int:
         """At pruning steps, remove radius outliers (Open3D); returns how many were removed.
 
-        Never removes every point: if the test would reject them all, nothing is pruned.
+        If the test would reject more than ``prune_max_fraction`` of the points, G_a is too
+        sparse for the radius (e.g. a short stage 1) rather than full of outliers, and the
+        step is skipped (the paper does not say; removing 97 % of a sparse cloud was measured
+        to hurt).
         """
         cfg = self.cfg
         if not cfg.enabled or step <= 0 or step % cfg.prune_every:
             return 0
         keep = radius_inliers(points.X.detach().cpu(), cfg.prune_min_neighbors, cfg.prune_radius)
         n_keep = int(keep.sum())
-        if n_keep == points.num_points or n_keep == 0:
+        if n_keep == points.num_points or points.num_points - n_keep > cfg.prune_max_fraction * points.num_points:
             return 0
         removed = points.num_points - n_keep
         update_points(points, optimizer, keep.to(points.X.device))
