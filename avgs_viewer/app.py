@@ -1,0 +1,110 @@
+"""``avgs-viewer``: the desktop explorer, or a one-shot headless export.
+
+    avgs-viewer [scene.ckpt] [--clip clip.wav]
+    avgs-viewer scene.ckpt --screenshot out.png --listener X Y Z --yaw DEG --source X Y Z
+                [--scale S] [--transparent] [--audio out.wav]
+
+With ``--screenshot`` and/or ``--audio`` nothing is shown: the scene is drawn into an
+off-screen plotter (EGL, no X server needed), the files are written and the program
+exits. Otherwise the window opens at once and the checkpoint loads in the background.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+DEMO_SCENE = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
+PROG = "avgs-viewer"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description="Explore a trained AV-GS scene: drag a listener and a "
+                                "sound source and hear the binaural result.")
+    p.add_argument("scene", nargs="?", type=Path, default=None,
+                   help=f"checkpoint to open (default: the bundled demo, {DEMO_SCENE})")
+    p.add_argument("--clip", type=Path, default=None, help="mono (or down-mixed) audio clip to loop")
+    g = p.add_argument_group("headless export (no window)")
+    g.add_argument("--screenshot", type=Path, default=None, help="write a PNG of the point pattern and exit")
+    g.add_argument("--audio", type=Path, default=None, help="write the binaural WAV of the clip and exit")
+    g.add_argument("--listener", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
+                   help="listener position, world coordinates (default: opposite the source)")
+    g.add_argument("--yaw", type=float, default=0.0, help="listener yaw, degrees ccw from +x (default 0)")
+    g.add_argument("--source", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
+                   help="source position, world coordinates (default: the trained source)")
+    g.add_argument("--scale", type=int, default=1, help="screenshot scale factor, 1..8 (default 1)")
+    g.add_argument("--transparent", action="store_true", help="transparent screenshot background")
+    g.add_argument("--size", type=int, nargs=2, metavar=("W", "H"), default=(1024, 768),
+                   help="screenshot window size in pixels before scaling (default 1024 768)")
+    g.add_argument("--colour-mode", choices=("vicinity", "alpha", "rgb"), default="vicinity",
+                   help="what the point colours show (default vicinity)")
+    g.add_argument("--no-legend", action="store_true", help="leave the legend out of the screenshot")
+    return p
+
+
+def resolve_scene(scene: Path | None) -> Path:
+    """The checkpoint to open; errors name what is missing and how to make it."""
+    if scene is None:
+        if not DEMO_SCENE.is_file():
+            raise FileNotFoundError(
+                f"no scene given and the bundled demo scene {DEMO_SCENE} does not exist yet; "
+                f"pass a checkpoint written by 'avgs train' (avgs-viewer path/to/scene.ckpt)")
+        return DEMO_SCENE
+    if not scene.is_file():
+        raise FileNotFoundError(f"scene checkpoint {scene} does not exist")
+    return scene
+
+
+def run_headless(args: argparse.Namespace, scene: Path) -> int:
+    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+        # No X server: go straight to EGL rather than have VTK try X first and warn.
+        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    from avgs import SceneRenderer
+
+    from .audio import load_clip
+    from .export import export_headless
+
+    renderer = SceneRenderer.load(scene)
+    clip = load_clip(args.clip, renderer.sample_rate) if args.clip else None
+    listener = args.listener
+    if listener is None:
+        from .state import ViewerState
+
+        listener = ViewerState(renderer.bounds, renderer.source if args.source is None else args.source).listener
+    export_headless(renderer, listener=listener, yaw=args.yaw, source=args.source, screenshot=args.screenshot,
+                    audio=args.audio, clip=clip, scale=args.scale, transparent=args.transparent,
+                    window_size=tuple(args.size), colour_mode=args.colour_mode, legend=not args.no_legend)
+    for path in (args.screenshot, args.audio):
+        if path is not None:
+            print(f"wrote {path}")
+    return 0
+
+
+def run_window(args: argparse.Namespace, scene: Path) -> int:
+    from PySide6 import QtCore, QtWidgets
+
+    app = QtWidgets.QApplication.instance() or QtWidgets.QApplication([PROG])
+    from .window import MainWindow
+
+    window = MainWindow(clip_path=args.clip)
+    window.show()
+    QtCore.QTimer.singleShot(0, lambda: window.open_scene(scene))  # after the window is on screen
+    return app.exec()
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        scene = resolve_scene(args.scene)
+        if args.screenshot is not None or args.audio is not None:
+            return run_headless(args, scene)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    return run_window(args, scene)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,107 @@
+"""Viewer benchmarks (called by ``avgs bench``): drag-to-audio latency and orbit frame rate.
+
+Measurements only, no pass/fail. The latency path is the viewer's own: a pose change
+on the :class:`~avgs_viewer.state.ViewerState` -> the newest-wins render worker ->
+``SceneRenderer.render`` on the looped clip -> the audio engine, whose callback is pumped
+at the device's pace by a simulated audio clock (no sound card needed) until the new
+buffer starts playing.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+
+def _summary(samples_s: list[float]) -> dict:
+    ms = np.asarray(samples_s) * 1e3
+    return {"n": int(len(ms)), "median_ms": float(np.median(ms)), "p95_ms": float(np.percentile(ms, 95)),
+            "min_ms": float(ms.min()), "max_ms": float(ms.max())}
+
+
+def drag_to_audio_latency(renderer: Any, n: int = 30, clip: np.ndarray | None = None, blocksize: int = 512,
+                          timeout_s: float = 30.0) -> dict:
+    """Median and p95 time from a listener move until its binaural buffer is live (ms).
+
+    The listener steps around a circle about the scene's centre; each step waits for the
+    audio callback to adopt the new buffer (the start of its crossfade). Includes the
+    render of the whole clip (default: the demo clip) and up to one audio block of
+    ``blocksize`` samples. Returns ``{n, median_ms, p95_ms, min_ms, max_ms, clip_s, block_ms}``.
+    """
+    from .audio import LoopEngine
+    from .export import default_clip
+    from .state import ViewerState
+    from .worker import LiveRender
+
+    sr = int(renderer.sample_rate)
+    clip = default_clip(sr) if clip is None else np.asarray(clip, dtype=np.float32)
+    bounds = np.asarray(renderer.bounds, dtype=np.float64)
+    state = ViewerState(bounds, renderer.source)
+    engine = LoopEngine(sr)
+    live = LiveRender(renderer, state, engine, clip)
+    stop = threading.Event()
+    block_s = blocksize / sr
+
+    def audio_clock() -> None:  # a sound card: one callback per block, in real time
+        out = np.zeros((blocksize, 2), dtype=np.float32)
+        next_t = time.perf_counter()
+        while not stop.is_set():
+            engine.callback(out, blocksize)
+            next_t += block_s
+            time.sleep(max(0.0, next_t - time.perf_counter()))
+
+    clock = threading.Thread(target=audio_clock, name="bench-audio-clock", daemon=True)
+    clock.start()
+    samples = []
+    try:
+        live.request()
+        _wait_generation(engine, 1, timeout_s)
+        centre = bounds.mean(axis=0)
+        radius = 0.3 * float(min(bounds[1, :2] - bounds[0, :2]))
+        z = state.listener[2]
+        for i in range(n):
+            angle = 2 * np.pi * (i + 1) / max(n, 1) + 0.1
+            target = engine.generation + 1
+            t0 = time.perf_counter()
+            state.set_listener((centre[0] + radius * np.cos(angle), centre[1] + radius * np.sin(angle), z))
+            _wait_generation(engine, target, timeout_s)
+            samples.append(time.perf_counter() - t0)
+    finally:
+        stop.set()
+        clock.join(5)
+        live.close()
+    out = _summary(samples)
+    out.update(clip_s=len(clip) / sr, block_ms=1e3 * block_s)
+    return out
+
+
+def _wait_generation(engine: Any, target: int, timeout_s: float) -> None:
+    deadline = time.perf_counter() + timeout_s
+    while engine.generation < target:
+        if time.perf_counter() > deadline:
+            raise TimeoutError(f"the new audio buffer did not go live within {timeout_s} s")
+        time.sleep(0.0005)
+
+
+def orbit_fps(plotter: Any, frames: int = 60, degrees: float = 360.0) -> dict:
+    """Frames per second while orbiting the camera about the scene (``frames`` renders).
+
+    Works on the window's ``QtInteractor`` and on an off-screen ``pv.Plotter``; the
+    camera is put back afterwards. Returns ``{frames, fps, ms_per_frame}``.
+    """
+    camera = plotter.camera
+    saved = plotter.camera_position
+    step = degrees / max(frames, 1)
+    render_window = plotter.render_window
+    render_window.Render()
+    t0 = time.perf_counter()
+    for _ in range(frames):
+        camera.Azimuth(step)
+        render_window.Render()
+    elapsed = time.perf_counter() - t0
+    plotter.camera_position = saved
+    return {"frames": int(frames), "fps": frames / elapsed if elapsed > 0 else float("inf"),
+            "ms_per_frame": 1e3 * elapsed / max(frames, 1)}

@@ -1,0 +1,273 @@
+"""The viewer's state: plain Python with observer callbacks, no Qt.
+
+The Qt window and the PyVista scene view are handed a :class:`ViewerState` and
+subscribe to its events (napari's habit: the model knows nothing of its views). Every
+setter validates, clamps to the scene and emits only when the value really changed, so
+a widget that mirrors the state can set it back without an endless loop.
+
+Coordinates are world coordinates, yaw is degrees counter-clockwise from +x
+(ARCHITECTURE.md). The listener moves at its own height; the source anywhere inside
+the scene bounds.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+
+class ColourMode(str, enum.Enum):
+    """What the audio points' colours show."""
+
+    ALPHA = "alpha"
+    "A fixed 3-component projection of the learned audio-guidance parameters."
+    RGB = "rgb"
+    "The colour of the nearest Gaussian of G (only when the checkpoint carries G)."
+    VICINITY = "vicinity"
+    "Membership of the listener's and the source's vicinity sets."
+
+
+class Event:
+    """A list of callbacks called with one value, in connection order."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self._callbacks: list[Callable[[Any], None]] = []
+
+    def connect(self, callback: Callable[[Any], None]) -> Callable[[Any], None]:
+        if callback not in self._callbacks:
+            self._callbacks.append(callback)
+        return callback
+
+    def disconnect(self, callback: Callable[[Any], None]) -> None:
+        if callback in self._callbacks:
+            self._callbacks.remove(callback)
+
+    def emit(self, value: Any) -> None:
+        for callback in list(self._callbacks):
+            callback(value)
+
+
+class ViewerEvents:
+    """One :class:`Event` per state field, plus ``pose`` for any listener/yaw/source change."""
+
+    NAMES = ("listener", "yaw", "source", "pose", "colour_mode", "slice_height",
+             "volume", "playing", "interacting")
+
+    def __init__(self):
+        for name in self.NAMES:
+            setattr(self, name, Event(name))
+
+    def disconnect_all(self, callback: Callable[[Any], None]) -> None:
+        for name in self.NAMES:
+            getattr(self, name).disconnect(callback)
+
+
+@dataclass(frozen=True)
+class Pose:
+    """What one binaural render depends on (world coordinates, yaw in degrees)."""
+
+    listener: tuple[float, float, float]
+    yaw: float
+    source: tuple[float, float, float]
+
+
+def _vec3(value: Any, what: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what} must be 3 finite numbers (x, y, z), got {value!r}")
+    return arr
+
+
+class ViewerState:
+    """Listener, yaw, source, colour mode, slice height, volume and play state.
+
+    ``bounds`` [2, 3] world (min corner, max corner) constrains both positions.
+    """
+
+    def __init__(self, bounds: np.ndarray, source: Any, listener: Any = None, yaw: float = 0.0,
+                 colour_mode: ColourMode = ColourMode.VICINITY, has_rgb: bool = False):
+        bounds = np.asarray(bounds, dtype=np.float64)
+        if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or np.any(bounds[1] < bounds[0]):
+            raise ValueError(f"bounds must be [2, 3] finite (min, max) corners with max >= min, got {bounds!r}")
+        self.bounds = bounds  # [2, 3]
+        self.has_rgb = bool(has_rgb)
+        self.events = ViewerEvents()
+        self._source = self._clamp(_vec3(source, "source"))
+        if listener is None:
+            listener = self.default_listener()
+        self._listener = self._clamp(_vec3(listener, "listener"))
+        self._yaw = self._wrap(yaw)
+        self._colour_mode = self._check_mode(colour_mode)
+        self._slice_height = self.default_slice_height()
+        self._volume = 0.8
+        self._playing = True
+        self._interacting = False
+
+    # ------------------------------------------------------------------ defaults
+    def default_listener(self) -> np.ndarray:
+        """The source mirrored through the room's centre in xy, at the source's height."""
+        centre = self.bounds.mean(axis=0)
+        mirrored = 2.0 * centre - self._source
+        mirrored[2] = self._source[2]
+        return self._clamp(mirrored)
+
+    def default_slice_height(self) -> float:
+        """Halfway between the higher of listener and source and the ceiling."""
+        top = max(self._listener[2], self._source[2])
+        return float(top + 0.5 * (self.bounds[1, 2] - top))
+
+    # ------------------------------------------------------------------ helpers
+    def _clamp(self, xyz: np.ndarray) -> np.ndarray:
+        return np.clip(xyz, self.bounds[0], self.bounds[1])
+
+    @staticmethod
+    def _wrap(yaw: float) -> float:
+        yaw = float(yaw)
+        if not np.isfinite(yaw):
+            raise ValueError(f"yaw must be a finite number of degrees, got {yaw!r}")
+        return yaw % 360.0
+
+    def _check_mode(self, mode: Any) -> ColourMode:
+        try:
+            mode = ColourMode(mode)
+        except ValueError:
+            choices = ", ".join(m.value for m in ColourMode)
+            raise ValueError(f"colour mode must be one of {choices}, got {mode!r}") from None
+        if mode is ColourMode.RGB and not self.has_rgb:
+            raise ValueError("colour mode 'rgb' needs the Gaussians G, which this checkpoint does not carry")
+        return mode
+
+    def _emit_pose(self) -> None:
+        self.events.pose.emit(self.pose)
+
+    # ------------------------------------------------------------------ pose
+    @property
+    def listener(self) -> np.ndarray:
+        return self._listener.copy()
+
+    def set_listener(self, xyz: Any) -> None:
+        """Move the listener in xy, kept at its own height and inside the bounds."""
+        xyz = _vec3(xyz, "listener").copy()
+        xyz[2] = self._listener[2]
+        xyz = self._clamp(xyz)
+        if np.array_equal(xyz, self._listener):
+            return
+        self._listener = xyz
+        self.events.listener.emit(self.listener)
+        self._emit_pose()
+
+    def set_listener_height(self, z: float) -> None:
+        """Change the listener's height (the one way to move it off its plane)."""
+        xyz = self._listener.copy()
+        xyz[2] = float(z)
+        xyz = self._clamp(xyz)
+        if np.array_equal(xyz, self._listener):
+            return
+        self._listener = xyz
+        self.events.listener.emit(self.listener)
+        self._emit_pose()
+
+    @property
+    def source(self) -> np.ndarray:
+        return self._source.copy()
+
+    def set_source(self, xyz: Any) -> None:
+        """Move the source anywhere inside the bounds."""
+        xyz = self._clamp(_vec3(xyz, "source"))
+        if np.array_equal(xyz, self._source):
+            return
+        self._source = xyz
+        self.events.source.emit(self.source)
+        self._emit_pose()
+
+    @property
+    def yaw(self) -> float:
+        return self._yaw
+
+    def set_yaw(self, degrees: float) -> None:
+        yaw = self._wrap(degrees)
+        if yaw == self._yaw:
+            return
+        self._yaw = yaw
+        self.events.yaw.emit(yaw)
+        self._emit_pose()
+
+    def turn(self, degrees: float) -> None:
+        """Turn the listener by ``degrees`` (positive = counter-clockwise, to the left)."""
+        self.set_yaw(self._yaw + float(degrees))
+
+    @property
+    def facing(self) -> np.ndarray:
+        """[3] unit facing direction in the xy plane."""
+        rad = np.deg2rad(self._yaw)
+        return np.array([np.cos(rad), np.sin(rad), 0.0])
+
+    @property
+    def pose(self) -> Pose:
+        return Pose(tuple(map(float, self._listener)), self._yaw, tuple(map(float, self._source)))
+
+    # ------------------------------------------------------------------ display
+    @property
+    def colour_mode(self) -> ColourMode:
+        return self._colour_mode
+
+    def set_colour_mode(self, mode: Any) -> None:
+        mode = self._check_mode(mode)
+        if mode is self._colour_mode:
+            return
+        self._colour_mode = mode
+        self.events.colour_mode.emit(mode)
+
+    @property
+    def slice_height(self) -> float:
+        """Points above this height (world z) are hidden: the ceiling is sliced off."""
+        return self._slice_height
+
+    def set_slice_height(self, z: float) -> None:
+        z = float(np.clip(float(z), self.bounds[0, 2], self.bounds[1, 2]))
+        if z == self._slice_height:
+            return
+        self._slice_height = z
+        self.events.slice_height.emit(z)
+
+    @property
+    def interacting(self) -> bool:
+        """True while the camera or a handle is being dragged (views draw cheaply)."""
+        return self._interacting
+
+    def set_interacting(self, flag: bool) -> None:
+        flag = bool(flag)
+        if flag == self._interacting:
+            return
+        self._interacting = flag
+        self.events.interacting.emit(flag)
+
+    # ------------------------------------------------------------------ playback
+    @property
+    def volume(self) -> float:
+        return self._volume
+
+    def set_volume(self, volume: float) -> None:
+        volume = float(np.clip(float(volume), 0.0, 1.0))
+        if volume == self._volume:
+            return
+        self._volume = volume
+        self.events.volume.emit(volume)
+
+    @property
+    def playing(self) -> bool:
+        return self._playing
+
+    def set_playing(self, flag: bool) -> None:
+        flag = bool(flag)
+        if flag == self._playing:
+            return
+        self._playing = flag
+        self.events.playing.emit(flag)
+
+    def toggle_playing(self) -> None:
+        self.set_playing(not self._playing)

@@ -1,0 +1,481 @@
+"""The Qt main window: composition only.
+
+It owns a ``pyvistaqt.QtInteractor`` and hands it to :class:`~avgs_viewer.scene_view.SceneView`;
+forwards mouse events to the Qt-free :class:`~avgs_viewer.drag.DragController`; mirrors
+the :class:`~avgs_viewer.state.ViewerState` in its widgets; sends poses to the render
+worker (:class:`~avgs_viewer.worker.LiveRender`) and brings results back to the GUI
+thread with a queued signal. The model never runs on the GUI thread: checkpoints load on
+a background thread too, so the window shows before torch is even imported.
+"""
+
+from __future__ import annotations
+
+import threading
+import traceback
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PySide6 import QtCore, QtGui, QtWidgets
+from pyvistaqt import QtInteractor
+
+from . import audio, export
+from .drag import DragController
+from .scene_view import SceneView
+from .state import ColourMode, ViewerState
+
+COLOUR_MODE_NAMES = {ColourMode.VICINITY: "Vicinity sets", ColourMode.ALPHA: "Learned alpha (PCA)",
+                     ColourMode.RGB: "G's colour (RGB)"}
+YAW_STEP = 15.0
+METER_FLOOR_DB = -60.0
+
+
+class _Bridge(QtCore.QObject):
+    """Signals emitted from worker threads, delivered on the GUI thread (queued)."""
+
+    loaded = QtCore.Signal(object, object)      # (path, SceneRenderer)
+    load_failed = QtCore.Signal(object, str)    # (path, message)
+    rendered = QtCore.Signal(object, object)    # (PoseRequest, RenderResult)
+    render_failed = QtCore.Signal(object, str)  # (PoseRequest, message)
+
+
+def _swatches(rows: list[tuple[str, tuple[int, int, int]]]) -> str:
+    return "<br>".join(f'<span style="color: rgb{tuple(c)}">&#9679;</span> {t}' for t, c in rows)
+
+
+class ControlPanel(QtWidgets.QWidget):
+    """Colour mode, legend, slice height, yaw dial, playback and level meters."""
+
+    def __init__(self, parent: QtWidgets.QWidget | None = None):
+        super().__init__(parent)
+        self.state: ViewerState | None = None
+        form = QtWidgets.QVBoxLayout(self)
+
+        self.colour_mode = QtWidgets.QComboBox()
+        self.legend = QtWidgets.QLabel()
+        self.legend.setTextFormat(QtCore.Qt.TextFormat.RichText)
+        self.legend.setWordWrap(True)
+        form.addWidget(self._group("Colour", self.colour_mode, self.legend))
+
+        self.slice = QtWidgets.QSlider(QtCore.Qt.Orientation.Horizontal)
+        self.slice.setRange(0, 1000)
+        self.slice_label = QtWidgets.QLabel()
+        form.addWidget(self._group("Slice height (hide points above)", self.slice, self.slice_label))
+
+        self.yaw = QtWidgets.QDial()
+        self.yaw.setRange(0, 359)
+        self.yaw.setWrapping(True)
+        self.yaw.setNotchesVisible(True)
+        self.yaw_label = QtWidgets.QLabel()
+        form.addWidget(self._group("Listener yaw (Q / E, Left / Right)", self.yaw, self.yaw_label))
+
+        self.play = QtWidgets.QPushButton("Pause")
+        self.volume = QtWidgets.QSlider(QtCore.Qt.Orientation.Horizontal)
+        self.volume.setRange(0, 100)
+        self.meter_left, self.meter_right = QtWidgets.QProgressBar(), QtWidgets.QProgressBar()
+        for meter, name in ((self.meter_left, "L"), (self.meter_right, "R")):
+            meter.setRange(int(METER_FLOOR_DB * 10), 0)
+            meter.setFormat(f"{name} %v")
+            meter.setTextVisible(False)
+        self.levels = QtWidgets.QLabel("L - dB   R - dB   ILD - dB")
+        form.addWidget(self._group("Playback", self.play, QtWidgets.QLabel("Volume"), self.volume,
+                                   self.meter_left, self.meter_right, self.levels))
+        form.addStretch(1)
+        self.setEnabled(False)
+
+        self.colour_mode.currentIndexChanged.connect(self._colour_mode_changed)
+        self.slice.valueChanged.connect(self._slice_changed)
+        self.yaw.valueChanged.connect(lambda v: self.state and self.state.set_yaw(float(v)))
+        self.play.clicked.connect(lambda: self.state and self.state.toggle_playing())
+        self.volume.valueChanged.connect(lambda v: self.state and self.state.set_volume(v / 100))
+
+    @staticmethod
+    def _group(title: str, *widgets: QtWidgets.QWidget) -> QtWidgets.QGroupBox:
+        box = QtWidgets.QGroupBox(title)
+        layout = QtWidgets.QVBoxLayout(box)
+        for w in widgets:
+            layout.addWidget(w)
+        return box
+
+    def bind(self, state: ViewerState, view: SceneView) -> None:
+        """Mirror ``state`` in the widgets (and widgets into it)."""
+        self.state, self.view = state, view
+        with QtCore.QSignalBlocker(self.colour_mode):
+            self.colour_mode.clear()
+            for mode, name in COLOUR_MODE_NAMES.items():
+                if mode is ColourMode.RGB and not state.has_rgb:
+                    continue
+                self.colour_mode.addItem(name, mode)
+        for event, cb in ((state.events.colour_mode, self._show_colour_mode),
+                          (state.events.slice_height, self._show_slice),
+                          (state.events.yaw, self._show_yaw),
+                          (state.events.playing, self._show_playing),
+                          (state.events.volume, self._show_volume)):
+            event.connect(cb)
+        self._show_colour_mode(state.colour_mode)
+        self._show_slice(state.slice_height)
+        self._show_yaw(state.yaw)
+        self._show_playing(state.playing)
+        self._show_volume(state.volume)
+        self.setEnabled(True)
+
+    def _slice_to_z(self, v: int) -> float:
+        lo, hi = self.state.bounds[:, 2]
+        return float(lo + (hi - lo) * v / 1000)
+
+    def _colour_mode_changed(self, index: int) -> None:
+        if self.state is not None and index >= 0:
+            self.state.set_colour_mode(self.colour_mode.itemData(index))
+
+    def _slice_changed(self, v: int) -> None:
+        if self.state is not None:
+            self.state.set_slice_height(self._slice_to_z(v))
+
+    def _show_colour_mode(self, mode: ColourMode) -> None:
+        with QtCore.QSignalBlocker(self.colour_mode):
+            self.colour_mode.setCurrentIndex(self.colour_mode.findData(mode))
+        self.legend.setText(_swatches(self.view.legend_rows()))
+
+    def _show_slice(self, z: float) -> None:
+        lo, hi = self.state.bounds[:, 2]
+        with QtCore.QSignalBlocker(self.slice):
+            self.slice.setValue(int(round(1000 * (z - lo) / (hi - lo))) if hi > lo else 1000)
+        self.slice_label.setText(f"z <= {z:.2f}")
+
+    def _show_yaw(self, yaw: float) -> None:
+        with QtCore.QSignalBlocker(self.yaw):
+            self.yaw.setValue(int(round(yaw)) % 360)
+        self.yaw_label.setText(f"{yaw:.0f} deg ccw from +x")
+
+    def _show_playing(self, playing: bool) -> None:
+        self.play.setText("Pause" if playing else "Play")
+
+    def _show_volume(self, volume: float) -> None:
+        with QtCore.QSignalBlocker(self.volume):
+            self.volume.setValue(int(round(100 * volume)))
+
+    def show_levels(self, left: float, right: float, ild: float) -> None:
+        self.levels.setText(f"L {left:.1f} dB   R {right:.1f} dB   ILD {ild:+.1f} dB")
+
+    def show_meters(self, left: float, right: float) -> None:
+        self.meter_left.setValue(int(10 * max(left, METER_FLOOR_DB)))
+        self.meter_right.setValue(int(10 * max(right, METER_FLOOR_DB)))
+
+
+class ExportOptions(QtWidgets.QDialog):
+    """Scale and transparent background for a screenshot."""
+
+    def __init__(self, parent: QtWidgets.QWidget | None = None):
+        super().__init__(parent)
+        self.setWindowTitle("Screenshot options")
+        layout = QtWidgets.QFormLayout(self)
+        self.scale = QtWidgets.QSpinBox()
+        self.scale.setRange(1, 8)
+        self.transparent = QtWidgets.QCheckBox("Transparent background")
+        layout.addRow("Scale", self.scale)
+        layout.addRow(self.transparent)
+        buttons = QtWidgets.QDialogButtonBox(QtWidgets.QDialogButtonBox.StandardButton.Ok
+                                             | QtWidgets.QDialogButtonBox.StandardButton.Cancel)
+        buttons.accepted.connect(self.accept)
+        buttons.rejected.connect(self.reject)
+        layout.addRow(buttons)
+
+
+class MainWindow(QtWidgets.QMainWindow):
+    """The explorer: a 3D view of the scene's audio points, two draggable handles, live audio."""
+
+    scene_loaded = QtCore.Signal(object)  # the SceneRenderer, after the scene is on screen
+
+    def __init__(self, clip_path: str | Path | None = None, start_audio: bool = True):
+        super().__init__()
+        self.setWindowTitle("AV-GS explorer")
+        self.resize(1280, 800)
+        self.renderer: Any = None
+        self.scene_path: Path | None = None
+        self.state: ViewerState | None = None
+        self.view: SceneView | None = None
+        self.drag: DragController | None = None
+        self.live = None
+        self.engine: audio.LoopEngine | None = None
+        self.output: audio.AudioOutput | None = None
+        self.error_dialog: QtWidgets.QMessageBox | None = None
+        self._clip_path = Path(clip_path) if clip_path else None
+        self._start_audio = start_audio
+        self._loading = False
+
+        self._bridge = _Bridge()
+        self._bridge.loaded.connect(self._on_loaded)
+        self._bridge.load_failed.connect(self._on_load_failed)
+        self._bridge.rendered.connect(self._on_rendered)
+        self._bridge.render_failed.connect(self._on_render_failed)
+
+        self.plotter = QtInteractor(self)
+        self.plotter.installEventFilter(self)
+        self.plotter.iren.add_observer("StartInteractionEvent", lambda *_: self._camera_moving(True))
+        self.plotter.iren.add_observer("EndInteractionEvent", lambda *_: self._camera_moving(False))
+        self.panel = ControlPanel()
+        splitter = QtWidgets.QSplitter()
+        splitter.addWidget(self.plotter)
+        splitter.addWidget(self.panel)
+        splitter.setStretchFactor(0, 1)
+        splitter.setSizes([1000, 280])
+        self.setCentralWidget(splitter)
+
+        self.progress = QtWidgets.QProgressBar()
+        self.progress.setRange(0, 0)  # busy indicator while loading
+        self.progress.setMaximumWidth(160)
+        self.progress.hide()
+        self.audio_status = QtWidgets.QLabel()
+        self.statusBar().addPermanentWidget(self.audio_status)
+        self.statusBar().addPermanentWidget(self.progress)
+        self._build_menus()
+
+        self.meter_timer = QtCore.QTimer(self)
+        self.meter_timer.setInterval(50)
+        self.meter_timer.timeout.connect(self._update_meters)
+
+    # ------------------------------------------------------------------ menus
+    def _build_menus(self) -> None:
+        file_menu = self.menuBar().addMenu("&File")
+        self._action(file_menu, "&Open scene...", self.choose_scene, QtGui.QKeySequence.StandardKey.Open)
+        self._action(file_menu, "Open &clip...", self.choose_clip)
+        file_menu.addSeparator()
+        self.export_shot_action = self._action(file_menu, "Export &screenshot...", self.choose_screenshot)
+        self.export_audio_action = self._action(file_menu, "Export &audio...", self.choose_audio_export)
+        file_menu.addSeparator()
+        self._action(file_menu, "&Quit", self.close, QtGui.QKeySequence.StandardKey.Quit)
+        view_menu = self.menuBar().addMenu("&View")
+        self._action(view_menu, "&Reset camera", lambda: self.view and self.view.camera_home() or self.plotter.render(),
+                     "R")
+        self._action(view_menu, "Play / pause", lambda: self.state and self.state.toggle_playing(), "Space")
+        for keys, degrees in ((("Q", "Left"), YAW_STEP), (("E", "Right"), -YAW_STEP)):
+            act = QtGui.QAction(f"Turn {'left' if degrees > 0 else 'right'}", self)
+            act.setShortcuts([QtGui.QKeySequence(k) for k in keys])
+            act.setShortcutContext(QtCore.Qt.ShortcutContext.WindowShortcut)
+            act.triggered.connect(lambda _=False, d=degrees: self.state and self.state.turn(d))
+            view_menu.addAction(act)
+
+    def _action(self, menu: QtWidgets.QMenu, text: str, slot, shortcut=None) -> QtGui.QAction:
+        act = QtGui.QAction(text, self)
+        if shortcut is not None:
+            act.setShortcut(QtGui.QKeySequence(shortcut))
+        act.triggered.connect(lambda _=False: slot())
+        menu.addAction(act)
+        return act
+
+    # ------------------------------------------------------------------ loading
+    def open_scene(self, path: str | Path) -> None:
+        """Load a checkpoint on a background thread; the scene replaces the current one when ready."""
+        path = Path(path)
+        if self._loading:
+            self.statusBar().showMessage("Still loading the previous scene", 3000)
+            return
+        self._loading = True
+        self.progress.show()
+        self.statusBar().showMessage(f"Loading {path} ...")
+
+        def load() -> None:
+            try:
+                from avgs import SceneRenderer  # torch is imported here, off the GUI thread
+
+                renderer = SceneRenderer.load(path)
+            except Exception as exc:  # every failure becomes a dialog, never a crash
+                message = str(exc) if isinstance(exc, (ValueError, FileNotFoundError)) else \
+                    f"{type(exc).__name__}: {exc}\n\n{traceback.format_exc(limit=3)}"
+                self._bridge.load_failed.emit(path, message)
+            else:
+                self._bridge.loaded.emit(path, renderer)
+
+        threading.Thread(target=load, name="avgs-load", daemon=True).start()
+
+    def _on_load_failed(self, path: Path, message: str) -> None:
+        self._loading = False
+        self.progress.hide()
+        self.statusBar().showMessage(f"Could not open {path}", 5000)
+        self.show_error("Cannot open scene", f"Could not open {path}:\n{message}")
+
+    def show_error(self, title: str, message: str) -> None:
+        """A non-blocking error dialog (kept as ``error_dialog`` for tests)."""
+        box = QtWidgets.QMessageBox(QtWidgets.QMessageBox.Icon.Critical, title, message,
+                                    QtWidgets.QMessageBox.StandardButton.Ok, self)
+        box.setAttribute(QtCore.Qt.WidgetAttribute.WA_DeleteOnClose)
+        box.open()
+        self.error_dialog = box
+
+    def _on_loaded(self, path: Path, renderer: Any) -> None:
+        self._loading = False
+        self.progress.hide()
+        try:
+            self._install_scene(renderer)
+        except Exception as exc:  # a checkpoint the viewer cannot draw
+            self.show_error("Cannot show scene", f"Could not show {path}:\n{type(exc).__name__}: {exc}")
+            return
+        self.scene_path = Path(path)
+        self.setWindowTitle(f"AV-GS explorer - {Path(path).name}")
+        self.statusBar().showMessage(f"Loaded {path}: {len(renderer.points)} audio points", 5000)
+        self.scene_loaded.emit(renderer)
+
+    def _install_scene(self, renderer: Any) -> None:
+        from .worker import LiveRender
+
+        self._teardown_scene()
+        state = ViewerState(renderer.bounds, renderer.source, has_rgb=renderer.gaussians is not None)
+        self.plotter.clear()
+        view = SceneView(self.plotter, renderer, state)
+        self.renderer, self.state, self.view = renderer, state, view
+        self.drag = DragController(state, view.projector, view.handle_radius)
+        self.panel.bind(state, view)
+        if self.engine is None or self.engine.sample_rate != renderer.sample_rate:
+            self._start_engine(renderer.sample_rate)
+        self.engine.reset_gain()
+        state.events.volume.connect(lambda v: setattr(self.engine, "volume", v))
+        state.events.playing.connect(lambda p: setattr(self.engine, "playing", p))
+        self.engine.volume, self.engine.playing = state.volume, state.playing
+        clip = self._load_clip(renderer.sample_rate)
+        self.live = LiveRender(renderer, state, self.engine, clip,
+                               on_result=lambda req, res: self._bridge.rendered.emit(req, res),
+                               on_error=lambda req, exc: self._bridge.render_failed.emit(req, f"{type(exc).__name__}: {exc}"))
+        self.live.request()
+        self.plotter.render()
+
+    def _load_clip(self, sample_rate: int) -> np.ndarray:
+        if self._clip_path is not None:
+            try:
+                return audio.load_clip(self._clip_path, sample_rate)
+            except (ValueError, FileNotFoundError) as exc:
+                self.show_error("Cannot open clip", str(exc))
+                self._clip_path = None
+        return export.default_clip(sample_rate)
+
+    def _start_engine(self, sample_rate: int) -> None:
+        if self.output is not None:
+            self.output.close()
+        self.engine = audio.LoopEngine(sample_rate)
+        self.output = audio.AudioOutput(self.engine)
+        message = self.output.start() if self._start_audio else "Audio output off"
+        self.audio_status.setText(message or f"Audio: {sample_rate} Hz")
+        if message:
+            self.statusBar().showMessage(message, 10000)
+        self.meter_timer.start()
+
+    def _teardown_scene(self) -> None:
+        if self.live is not None:
+            self.live.close()
+            self.live = None
+        if self.view is not None:
+            self.view.close()
+            self.view = None
+        self.drag = None
+
+    # ------------------------------------------------------------------ results
+    def _on_rendered(self, request: Any, result: Any) -> None:
+        if self.view is None or self.live is None or request is not self.live.last_request:
+            return  # a newer result (or another scene) has replaced it
+        self.view.set_vicinity(result.listener_vicinity, result.source_vicinity)
+        self.panel.show_levels(*audio.levels(result.binaural))
+
+    def _on_render_failed(self, request: Any, message: str) -> None:
+        self.statusBar().showMessage(f"Render failed: {message}", 10000)
+
+    def _update_meters(self) -> None:
+        if self.engine is not None:
+            if self.output is not None and self.output.available:
+                self.panel.show_meters(*self.engine.block_levels)
+            elif self.engine.current is not None:  # no device: show the buffer's own levels
+                left, right, _ = audio.levels(self.engine.current)
+                self.panel.show_meters(left, right)
+
+    # ------------------------------------------------------------------ mouse
+    def _camera_moving(self, moving: bool) -> None:
+        if self.state is not None:
+            self.state.set_interacting(moving)
+
+    def eventFilter(self, obj: QtCore.QObject, event: QtCore.QEvent) -> bool:  # noqa: N802
+        """Forward left-button drags that start on a handle to the drag logic; the rest to VTK."""
+        kind = event.type()
+        if obj is self.plotter and self.drag is not None and kind in (
+                QtCore.QEvent.Type.MouseButtonPress, QtCore.QEvent.Type.MouseMove,
+                QtCore.QEvent.Type.MouseButtonRelease):
+            pos = event.position()
+            scale = self.plotter.devicePixelRatioF()
+            x, y = pos.x() * scale, (self.plotter.height() - pos.y() - 1) * scale  # VTK display pixels
+            if kind == QtCore.QEvent.Type.MouseButtonPress:
+                if event.button() == QtCore.Qt.MouseButton.LeftButton:
+                    return self.drag.press(x, y)
+            elif kind == QtCore.QEvent.Type.MouseMove:
+                return self.drag.move(x, y)
+            elif event.button() == QtCore.Qt.MouseButton.LeftButton:
+                return self.drag.release(x, y)
+        return super().eventFilter(obj, event)
+
+    # ------------------------------------------------------------------ file actions
+    def choose_scene(self) -> None:
+        path, _ = QtWidgets.QFileDialog.getOpenFileName(self, "Open scene", "", "AV-GS checkpoints (*.ckpt);;All files (*)")
+        if path:
+            self.open_scene(path)
+
+    def choose_clip(self) -> None:
+        path, _ = QtWidgets.QFileDialog.getOpenFileName(self, "Open clip", "", "Audio (*.wav *.flac *.ogg);;All files (*)")
+        if path:
+            self.open_clip(path)
+
+    def open_clip(self, path: str | Path) -> None:
+        """Loop another mono clip (down-mixed and resampled to the scene's rate)."""
+        if self.renderer is None:
+            self._clip_path = Path(path)
+            return
+        try:
+            clip = audio.load_clip(path, self.renderer.sample_rate)
+        except (ValueError, FileNotFoundError) as exc:
+            self.show_error("Cannot open clip", str(exc))
+            return
+        self._clip_path = Path(path)
+        self.live.set_clip(clip)
+        self.statusBar().showMessage(f"Looping {path} ({len(clip) / self.renderer.sample_rate:.1f} s)", 5000)
+
+    def choose_screenshot(self) -> None:
+        if self.view is None:
+            return
+        options = ExportOptions(self)
+        if options.exec() != QtWidgets.QDialog.DialogCode.Accepted:
+            return
+        path, _ = QtWidgets.QFileDialog.getSaveFileName(self, "Export screenshot", "scene.png", "PNG (*.png)")
+        if path:
+            self.export_screenshot(path, options.scale.value(), options.transparent.isChecked())
+
+    def export_screenshot(self, path: str | Path, scale: int = 1, transparent: bool = False) -> Path | None:
+        """Write the 3D view as a PNG (``scale`` times the view's size)."""
+        try:
+            out = export.write_screenshot(self.plotter, path, scale=scale, transparent=transparent)
+        except (ValueError, OSError) as exc:
+            self.show_error("Cannot export screenshot", str(exc))
+            return None
+        self.statusBar().showMessage(f"Wrote {out}", 5000)
+        return out
+
+    def choose_audio_export(self) -> None:
+        path, _ = QtWidgets.QFileDialog.getSaveFileName(self, "Export audio", "binaural.wav", "WAV (*.wav)")
+        if path:
+            self.export_audio(path)
+
+    def export_audio(self, path: str | Path) -> Path | None:
+        """Write the current binaural render (the whole looped clip) as a WAV."""
+        if self.live is None or self.live.last_result is None:
+            self.show_error("Cannot export audio", "No binaural render yet: wait for the scene to load.")
+            return None
+        try:
+            out = export.write_wav(path, self.live.last_result.binaural, self.renderer.sample_rate)
+        except (ValueError, OSError) as exc:
+            self.show_error("Cannot export audio", str(exc))
+            return None
+        self.statusBar().showMessage(f"Wrote {out}", 5000)
+        return out
+
+    # ------------------------------------------------------------------ closing
+    def closeEvent(self, event: QtGui.QCloseEvent) -> None:  # noqa: N802
+        self.meter_timer.stop()
+        self._teardown_scene()
+        if self.output is not None:
+            self.output.close()
+        self.plotter.close()
+        super().closeEvent(event)

@@ -1,0 +1,245 @@
+"""Viewer logic with no window and no GL: state, drag, colours, the newest-wins worker."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from avgs_viewer import colors
+from avgs_viewer.drag import DragController, pick_handle, ray_plane_z
+from avgs_viewer.state import ColourMode, ViewerState
+from avgs_viewer.worker import RenderWorker
+
+BOUNDS = np.array([[0.0, 0.0, 0.0], [5.0, 4.0, 3.0]])
+
+
+class TopDownCamera:
+    """An orthographic camera looking down -z: ``ppu`` pixels per metre, origin at pixel (0, 0)."""
+
+    def __init__(self, ppu: float = 100.0):
+        self.ppu = ppu
+
+    def to_display(self, world):
+        return np.asarray(world, dtype=float)[:2] * self.ppu
+
+    def ray(self, x, y):
+        return np.array([x / self.ppu, y / self.ppu, 50.0]), np.array([0.0, 0.0, -1.0])
+
+
+class TiltedCamera(TopDownCamera):
+    """A parallel projection along a tilted direction (rays not vertical), for the plane cast."""
+
+    D = np.array([0.0, 0.6, -0.8])
+
+    def to_display(self, world):
+        w = np.asarray(world, dtype=float)
+        t = -w[2] / self.D[2]  # slide along D onto z = 0
+        return (w + t * self.D)[:2] * self.ppu
+
+    def ray(self, x, y):
+        base = np.array([x / self.ppu, y / self.ppu, 0.0])
+        return base - 20 * self.D, self.D
+
+
+def record(event):
+    seen = []
+    event.connect(seen.append)
+    return seen
+
+
+# ---------------------------------------------------------------------- state
+def test_listener_moves_at_its_height_and_stays_in_bounds():
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
+    listener_events, pose_events = record(s.events.listener), record(s.events.pose)
+    s.set_listener((9.0, -2.0, 2.9))
+    assert np.allclose(s.listener, [5.0, 0.0, 1.5])  # clamped in xy, height kept
+    s.set_listener((9.0, -2.0, 0.0))  # the same clamped place: no event
+    assert len(listener_events) == 1 and len(pose_events) == 1
+    assert pose_events[0].listener == (5.0, 0.0, 1.5)
+    s.set_source((2.0, 2.0, 7.0))
+    assert np.allclose(s.source, [2.0, 2.0, 3.0])  # the source may change height, within bounds
+
+
+def test_yaw_wraps_turns_left_and_has_a_facing_vector():
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2))
+    yaws = record(s.events.yaw)
+    s.set_yaw(-90)
+    assert s.yaw == 270.0 and np.allclose(s.facing, [0, -1, 0], atol=1e-12)
+    s.turn(180)
+    assert s.yaw == 90.0 and np.allclose(s.facing, [0, 1, 0], atol=1e-12)
+    s.set_yaw(450)  # == 90: no event
+    assert yaws == [270.0, 90.0]
+    with pytest.raises(ValueError, match="yaw"):
+        s.set_yaw(float("nan"))
+
+
+def test_defaults_put_listener_opposite_the_source_and_the_slice_below_the_ceiling():
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2))
+    assert np.allclose(s.listener, [1.0, 1.0, 1.2])
+    assert 1.2 < s.slice_height < 3.0
+
+
+def test_invalid_values_name_what_was_expected():
+    with pytest.raises(ValueError, match="bounds"):
+        ViewerState(np.zeros((3, 3)), source=(0, 0, 0))
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2))
+    with pytest.raises(ValueError, match="listener must be 3 finite numbers"):
+        s.set_listener((1, 2))
+    with pytest.raises(ValueError, match="needs the Gaussians"):
+        s.set_colour_mode("rgb")
+    with pytest.raises(ValueError, match="alpha, rgb, vicinity"):
+        s.set_colour_mode("depth")
+    s2 = ViewerState(BOUNDS, source=(4, 3, 1.2), has_rgb=True)
+    modes = record(s2.events.colour_mode)
+    s2.set_colour_mode("rgb")
+    assert modes == [ColourMode.RGB]
+
+
+def test_slice_volume_and_play_are_clamped_and_only_emit_on_change():
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2))
+    slices, volumes, plays = record(s.events.slice_height), record(s.events.volume), record(s.events.playing)
+    s.set_slice_height(10)
+    s.set_slice_height(3.0)
+    s.set_volume(-1)
+    s.toggle_playing()
+    s.toggle_playing()
+    assert slices == [3.0] and volumes == [0.0] and plays == [False, True]
+
+
+# ---------------------------------------------------------------------- drag
+def test_ray_plane_intersection():
+    hit = ray_plane_z(np.array([0.0, 0.0, 5.0]), np.array([0.6, 0.0, -0.8]), 1.0)
+    assert np.allclose(hit, [3.0, 0.0, 1.0])
+    assert ray_plane_z(np.zeros(3), np.array([1.0, 0.0, 0.0]), 1.0) is None  # parallel
+    assert ray_plane_z(np.zeros(3), np.array([0.0, 0.0, 1.0]), -1.0) is None  # behind the origin
+
+
+def test_pick_prefers_the_handle_under_the_cursor():
+    cam = TopDownCamera()
+    handles = {"listener": np.array([1.0, 1.0, 1.5]), "source": np.array([1.3, 1.0, 1.2])}
+    assert pick_handle(cam, handles, 100, 100, radius=0.2) == "listener"
+    assert pick_handle(cam, handles, 125, 100, radius=0.2) == "source"  # both cover it; source is nearer
+    assert pick_handle(cam, handles, 300, 300, radius=0.2) is None
+
+
+def test_drag_listener_follows_the_cursor_on_its_plane_without_jumping():
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
+    drag = DragController(s, TiltedCamera, handle_radius=0.2)
+    interacting = record(s.events.interacting)
+    px = TiltedCamera().to_display(s.listener)
+    assert drag.press(px[0] + 5, px[1])  # grabbed 5 px off centre
+    assert np.allclose(s.listener, [1, 1, 1.5])  # a press alone moves nothing
+    drag.move(px[0] + 5 + 150, px[1] + 80)
+    assert np.allclose(s.listener, [2.5, 1.8, 1.5])  # moved by the cursor's motion, at its height
+    assert drag.release(px[0] + 5 + 200, px[1] + 80)
+    assert np.allclose(s.listener, [3.0, 1.8, 1.5])
+    assert interacting == [True, False] and drag.dragging is None
+    assert not drag.move(0, 0) and not drag.release(0, 0)  # nothing grabbed any more
+
+
+def test_drag_is_constrained_to_the_bounds_and_misses_pass_through():
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
+    drag = DragController(s, TopDownCamera, handle_radius=0.2)
+    assert not drag.press(10, 390)  # empty space: the camera gets the event
+    assert drag.press(400, 300)  # the source
+    drag.release(2000, -500)
+    assert np.allclose(s.source, [5.0, 0.0, 1.2])
+    assert np.allclose(s.listener, [1, 1, 1.5])
+
+
+# ---------------------------------------------------------------------- colours
+def test_alpha_projection_finds_the_planted_components_with_fixed_signs():
+    rng = np.random.default_rng(0)
+    basis = np.linalg.qr(rng.normal(size=(12, 3)))[0].T  # [3, 12] orthonormal directions
+    scores = rng.normal(size=(3000, 3)) * np.array([5.0, 2.0, 1.0])
+    alpha = scores @ basis + 0.01 * rng.normal(size=(3000, 12)) + 3.0
+    proj = colors.AlphaProjection.fit(alpha)
+    for i in range(3):  # each component is the planted direction (up to sign) ...
+        assert abs(proj.components[i] @ basis[i]) > 0.999
+        big = np.argmax(np.abs(proj.components[i]))  # ... with its largest loading positive
+        assert proj.components[i, big] > 0
+    assert np.allclose(proj.explained, np.array([25, 4, 1]) / 30, atol=0.02)
+    again = colors.AlphaProjection.fit(alpha[::-1] * 1.0)  # same rows, other order: same colours
+    assert np.array_equal(proj(alpha), again(alpha))
+    rgb = proj(alpha)
+    assert rgb.dtype == np.uint8 and rgb.shape == (3000, 3)
+    # A point far along +PC1 is pure red-saturated; along -PC1 has no red.
+    sign = np.sign(proj.components[0] @ basis[0])
+    ends = proj(np.stack([alpha.mean(0) + 40 * sign * basis[0], alpha.mean(0) - 40 * sign * basis[0]]))
+    assert ends[0, 0] == 255 and ends[1, 0] == 0
+    assert "PC1" in proj.legend()[0][0]
+
+
+def test_alpha_projection_of_low_dimensional_alpha():
+    alpha = np.column_stack([np.linspace(0, 1, 50), np.zeros(50)])
+    rgb = colors.AlphaProjection.fit(alpha)(alpha)
+    assert rgb[0, 0] == 0 and rgb[-1, 0] == 255  # PC1 spans red
+    assert np.all(rgb[:, 2] == 128)  # a missing component shows as mid-level
+
+
+def test_vicinity_labels_and_colours():
+    labels = colors.vicinity_labels(6, [0, 1, 2], [2, 3])
+    assert labels.tolist() == [colors.LISTENER, colors.LISTENER, colors.BOTH, colors.SOURCE, 0, 0]
+    rgb = colors.vicinity_colours(labels)
+    assert np.array_equal(rgb[2], colors.VICINITY_COLOURS[colors.BOTH])
+    assert len({tuple(c) for c in colors.VICINITY_COLOURS}) == 4
+    with pytest.raises(ValueError, match="listener vicinity indices"):
+        colors.vicinity_labels(3, [5], [])
+
+
+def test_rgb_takes_the_nearest_gaussian_colour():
+    means = np.array([[0.0, 0, 0], [10.0, 0, 0]])
+    rgb = np.array([[1.0, 0, 0], [0.0, 0, 1.0]])
+    out = colors.rgb_from_gaussians(np.array([[1.0, 0, 0], [9.0, 1, 0]]), means, rgb)
+    assert out.tolist() == [[255, 0, 0], [0, 0, 255]]
+
+
+# ---------------------------------------------------------------------- worker
+def test_worker_renders_only_the_newest_request():
+    gate = threading.Event()
+    rendered, results = [], []
+
+    def render(x):
+        rendered.append(x)
+        gate.wait(5)
+        return x * 10
+
+    w = RenderWorker(render, lambda seq, req, res: results.append((seq, res)))
+    try:
+        w.submit(1)
+        deadline = time.monotonic() + 5
+        while not rendered and time.monotonic() < deadline:
+            time.sleep(0.001)
+        for x in (2, 3, 4):  # arrive while 1 is rendering
+            w.submit(x)
+        gate.set()
+        assert w.wait_idle(5)
+    finally:
+        w.close()
+    assert rendered == [1, 4]
+    assert results == [(1, 10), (4, 40)]
+    assert w.dropped == 2 and not w.alive
+
+
+def test_worker_reports_errors_and_keeps_going():
+    errors, results = [], []
+
+    def render(x):
+        if x < 0:
+            raise ValueError("negative")
+        return x
+
+    w = RenderWorker(render, lambda s, q, r: results.append(r), lambda s, q, e: errors.append(str(e)))
+    try:
+        w.submit(-1)
+        assert w.wait_idle(5)
+        w.submit(2)
+        assert w.wait_idle(5)
+    finally:
+        w.close()
+    assert errors == ["negative"] and results == [2]
+    with pytest.raises(RuntimeError, match="closed"):
+        w.submit(3)
