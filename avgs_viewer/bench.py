@@ -29,7 +29,7 @@ def drag_to_audio_latency(renderer: Any, n: int = 30, clip: np.ndarray | None = 
     The listener steps around a circle about the scene's centre; each step waits for the
     audio callback to adopt the new buffer (the start of its crossfade). Includes the
     render of the whole clip (default: the demo clip) and up to one audio block of
-    ``blocksize`` samples. Returns ``{n, median_ms, p95_ms, min_ms, max_ms, clip_s, block_ms}``.
+    ``blocksize`` samples. Returns ``{n, median_ms, p95_ms, min_ms, max_ms, clip_s, block_ms, render_ms}``.
     """
     from .audio import LoopEngine
     from .export import default_clip
@@ -62,7 +62,9 @@ def drag_to_audio_latency(renderer: Any, n: int = 30, clip: np.ndarray | None = 
         centre = bounds.mean(axis=0)
         radius = 0.3 * float(min(bounds[1, :2] - bounds[0, :2]))
         z = state.listener[2]
+        rng = np.random.default_rng(0)
         for i in range(n):
+            time.sleep(rng.uniform(0, block_s))  # a move lands anywhere within an audio block
             angle = 2 * np.pi * (i + 1) / max(n, 1) + 0.1
             target = engine.generation + 1
             t0 = time.perf_counter()
@@ -74,7 +76,12 @@ def drag_to_audio_latency(renderer: Any, n: int = 30, clip: np.ndarray | None = 
         clock.join(5)
         live.close()
     out = _summary(samples)
-    out.update(clip_s=len(clip) / sr, block_ms=1e3 * block_s)
+    render_s = []
+    for _ in range(min(n, 5)):  # the model's share: one render of the whole loop clip
+        t0 = time.perf_counter()
+        renderer.render(listener=state.listener, yaw=state.yaw, mono=clip)
+        render_s.append(time.perf_counter() - t0)
+    out.update(clip_s=len(clip) / sr, block_ms=1e3 * block_s, render_ms=1e3 * float(np.median(render_s)))
     return out
 
 

@@ -372,7 +372,8 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.view is None or self.live is None or request is not self.live.last_request:
             return  # a newer result (or another scene) has replaced it
         self.view.set_vicinity(result.listener_vicinity, result.source_vicinity)
-        self.panel.show_levels(*audio.levels(result.binaural))
+        gain = self.engine.makeup_gain or 1.0  # levels as played at full volume
+        self.panel.show_levels(*audio.levels(result.binaural * gain))
 
     def _on_render_failed(self, request: Any, message: str) -> None:
         self.statusBar().showMessage(f"Render failed: {message}", 10000)

@@ -1,0 +1,194 @@
+"""The real window under Xvfb (pytest-xvfb starts it; pytest-qt drives it) on a trained scene."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import soundfile as sf
+import torch
+
+pytest.importorskip("pytestqt")
+from PySide6 import QtCore, QtWidgets  # noqa: E402
+
+from avgs.acoustics.points import AudioPoints  # noqa: E402
+from avgs.train.pipeline import quick_config, train_scene  # noqa: E402
+from avgs_viewer import colors  # noqa: E402
+from avgs_viewer.audio import levels  # noqa: E402
+from avgs_viewer.window import MainWindow  # noqa: E402
+from rwavs_writer import write_scene  # noqa: E402
+
+pytestmark = pytest.mark.gui
+
+
+@pytest.fixture(scope="module")
+def trained_ckpt(tmp_path_factory):
+    """200 stage-2 iterations on a free-field scene (the ear facing the source is louder): ~10 s."""
+    torch.set_num_threads(1)
+    root = tmp_path_factory.mktemp("gui_scene")
+    scene = write_scene(root, n_train=48, n_val=8, seed=0)
+    cfg = quick_config()
+    cfg.acoustic.iterations, cfg.acoustic.binauralizer_width = 200, 64
+    cfg.points.densify_every, cfg.points.prune_every = 40, 120
+    cfg.eval_every = cfg.checkpoint_every = 200
+    cfg.log_every = 50
+    g = torch.Generator().manual_seed(0)
+    points = AudioPoints(torch.rand(600, 3, generator=g) * 2 - 1, torch.randn(600, 52, generator=g))
+    out = root / "scene.ckpt"
+    train_scene(scene.scene_dir, out, cfg, progress=False, initial_points=points)
+    return out
+
+
+@pytest.fixture
+def window(qtbot, trained_ckpt):
+    w = MainWindow()
+    qtbot.addWidget(w)
+    w.show()
+    w.activateWindow()
+    qtbot.waitActive(w)  # keyboard shortcuts need the active window
+    with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
+        w.open_scene(trained_ckpt)
+    wait_render(qtbot, w)
+    yield w
+    w.close()
+
+
+def wait_render(qtbot, w: MainWindow) -> None:
+    """Until the newest pose has been rendered and its result shown on the GUI thread."""
+    def done():
+        live = w.live
+        assert live.worker.wait_idle(0.01)
+        assert live.last_request is not None and live.last_request.pose == w.state.pose
+        assert w.panel.levels.text().startswith("L ")
+    qtbot.waitUntil(done, timeout=30_000)
+    QtWidgets.QApplication.processEvents()
+
+
+def to_qt(w: MainWindow, display_xy) -> QtCore.QPoint:
+    """VTK display pixels (origin bottom left) -> widget coordinates."""
+    scale = w.plotter.devicePixelRatioF()
+    return QtCore.QPoint(int(round(display_xy[0] / scale)), int(round(w.plotter.height() - 1 - display_xy[1] / scale)))
+
+
+def ild(w: MainWindow) -> float:
+    return levels(w.live.last_result.binaural)[2]
+
+
+def test_dragging_the_listener_across_the_source_flips_the_ild(qtbot, window):
+    w = window
+    source = w.state.source
+    z = w.state.listener[2]
+    w.state.set_listener((source[0] - 1.5, source[1], z))
+    w.plotter.setFocus()
+    for _ in range(6):  # Q turns left by 15 degrees: face +y
+        qtbot.keyClick(w.plotter, QtCore.Qt.Key.Key_Q)
+    assert w.state.yaw == 90.0 and w.panel.yaw.value() == 90
+    wait_render(qtbot, w)
+    before = ild(w)
+    assert before < -1.0  # the source is on the right: the right ear is louder
+
+    w.plotter.render()
+    QtWidgets.QApplication.processEvents()
+    proj = w.view.projector()
+    start = to_qt(w, proj.to_display(w.state.listener))
+    end = to_qt(w, proj.to_display(np.array([source[0] + 1.5, source[1], z])))
+    qtbot.mousePress(w.plotter, QtCore.Qt.MouseButton.LeftButton, pos=start)
+    assert w.drag.dragging == "listener" and w.state.interacting
+    for t in np.linspace(0, 1, 12)[1:]:
+        qtbot.mouseMove(w.plotter, pos=start + (end - start) * float(t))
+        QtWidgets.QApplication.processEvents()
+    qtbot.mouseRelease(w.plotter, QtCore.Qt.MouseButton.LeftButton, pos=end)
+    assert w.drag.dragging is None and not w.state.interacting
+    assert w.state.listener[0] == pytest.approx(source[0] + 1.5, abs=0.15)
+    assert w.state.listener[2] == z  # dragged at its own height
+    wait_render(qtbot, w)
+    after = ild(w)
+    assert after > 1.0  # now the source is on the left: the left ear is louder
+    assert f"ILD {after:+.1f} dB" in w.panel.levels.text()  # gain-free: the same number as played
+
+
+def test_window_screenshot_shows_the_vicinity_sets(qtbot, window, tmp_path):
+    w = window
+    w.state.set_colour_mode("vicinity")
+    wait_render(qtbot, w)
+    out = w.export_screenshot(tmp_path / "window.png", scale=1)
+    img = np.asarray(sf_image(out))
+    proj = w.view.projector()
+    for position, label in ((w.state.listener, colors.LISTENER), (w.state.source, colors.SOURCE)):
+        p = proj.to_display(position)
+        h = img.shape[0]
+        x, y = int(p[0]), int(h - 1 - p[1])
+        patch = img[max(0, y - 120): y + 120, max(0, x - 120): x + 120, :3].astype(int)
+        hits = np.all(np.abs(patch - colors.VICINITY_COLOURS[label].astype(int)) <= 3, axis=-1).sum()
+        both = np.all(np.abs(patch - colors.VICINITY_COLOURS[colors.BOTH].astype(int)) <= 3, axis=-1).sum()
+        assert hits + both > 20, f"no {colors.VICINITY_NAMES[label]} colour near its sphere"
+
+
+def sf_image(path):
+    import pyvista as pv
+
+    img = pv.read(path)
+    w, h = img.dimensions[:2]
+    return img.point_data[img.point_data.keys()[0]].reshape(h, w, -1)[::-1]
+
+
+def test_exports_have_the_right_size(qtbot, window, tmp_path):
+    w = window
+    png = w.export_screenshot(tmp_path / "x2.png", scale=2, transparent=True)
+    img = sf_image(png)
+    size = w.plotter.render_window.GetSize()
+    assert img.shape == (2 * size[1], 2 * size[0], 4)
+    wav = w.export_audio(tmp_path / "now.wav")
+    audio, sr = sf.read(wav, always_2d=True)
+    assert sr == w.renderer.sample_rate and audio.shape == (len(w.live.clip), 2)
+    assert np.allclose(audio.T, w.live.last_result.binaural, atol=1e-6)
+
+
+def test_controls_drive_the_state(qtbot, window):
+    w = window
+    w.panel.slice.setValue(500)
+    lo, hi = w.state.bounds[:, 2]
+    assert w.state.slice_height == pytest.approx(lo + 0.5 * (hi - lo))
+    assert w.view._cloud.points[:, 2].max() <= w.state.slice_height
+    w.panel.yaw.setValue(200)
+    assert w.state.yaw == 200.0
+    w.panel.volume.setValue(25)
+    assert w.engine.volume == pytest.approx(0.25)
+    qtbot.mouseClick(w.panel.play, QtCore.Qt.MouseButton.LeftButton)
+    assert not w.state.playing and not w.engine.playing and w.panel.play.text() == "Play"
+    index = w.panel.colour_mode.findData(w.state.colour_mode.__class__("alpha"))
+    w.panel.colour_mode.setCurrentIndex(index)
+    assert w.state.colour_mode.value == "alpha" and "PC1" in w.panel.legend.text()
+    assert w.panel.colour_mode.findData(w.state.colour_mode.__class__("rgb")) == -1  # no G in this checkpoint
+
+
+def test_no_sound_card_is_reported_in_the_status_bar(window):
+    sd = pytest.importorskip("sounddevice")
+    if any(d["max_output_channels"] >= 2 for d in sd.query_devices()):
+        pytest.skip("this machine has an audio output")
+    assert window.audio_status.text().startswith("No audio")
+    assert window.live.last_result is not None  # rendering goes on without a device
+
+
+def test_bad_checkpoint_shows_an_error_dialog(qtbot, window, tmp_path):
+    w = window
+    bad = tmp_path / "broken.ckpt"
+    bad.write_bytes(b"this is not a checkpoint")
+    pose = w.state.pose
+    w.open_scene(bad)
+    qtbot.waitUntil(lambda: w.error_dialog is not None and w.error_dialog.isVisible(), timeout=30_000)
+    assert "broken.ckpt" in w.error_dialog.text() and "not an AV-GS checkpoint" in w.error_dialog.text()
+    w.error_dialog.accept()
+    assert w.state.pose == pose and w.live.worker.alive  # the loaded scene is untouched
+
+
+def test_closes_cleanly(qtbot, trained_ckpt):
+    w = MainWindow()
+    qtbot.addWidget(w)
+    w.show()
+    with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
+        w.open_scene(trained_ckpt)
+    worker = w.live.worker
+    w.close()
+    QtWidgets.QApplication.processEvents()
+    assert not worker.alive and w.live is None
+    assert [t for t in QtWidgets.QApplication.topLevelWidgets() if t.isVisible()] == []
