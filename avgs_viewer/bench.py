@@ -27,9 +27,10 @@ def drag_to_audio_latency(renderer: Any, n: int = 30, clip: np.ndarray | None = 
     """Median and p95 time from a listener move until its binaural buffer is live (ms).
 
     The listener steps around a circle about the scene's centre; each step waits for the
-    audio callback to adopt the new buffer (the start of its crossfade). Includes the
-    render of the whole clip (default: the demo clip) and up to one audio block of
-    ``blocksize`` samples. Returns ``{n, median_ms, p95_ms, min_ms, max_ms, clip_s, block_ms, render_ms}``.
+    audio callback to adopt the new buffer (the start of its crossfade); moves land at a
+    random phase of the audio block. Includes the render of the whole clip (default: the
+    demo clip), up to one audio block of ``blocksize`` samples, and the rest of the
+    previous crossfade when moves come faster than it (as in a drag). Returns ``{n, median_ms, p95_ms, min_ms, max_ms, clip_s, block_ms, render_ms}``.
     """
     from .audio import LoopEngine
     from .export import default_clip
