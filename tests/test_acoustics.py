@@ -147,15 +147,17 @@ def test_magnitude_loss_is_zero_on_the_truth():
     assert magnitude_loss(s_m + 1.0, s_l, s_r, gt).item() == pytest.approx(1.0)
 
 
-def test_volume_loss_equals_the_direct_product_where_finite():
+def test_volume_loss_equals_log1p_of_the_direct_product_where_finite():
     g = torch.Generator().manual_seed(0)
     alpha = (torch.rand(20, 6, generator=g, dtype=torch.float64) * 3 - 1.5)  # mixed signs
-    direct = alpha.prod(-1).sum()
+    direct = torch.log1p(alpha.prod(-1).abs()).sum()
     assert volume_loss(alpha).item() == pytest.approx(direct.item(), rel=1e-9)
+    small = alpha * 1e-3  # where alpha lives the penalty is the paper's product itself
+    assert volume_loss(small).item() == pytest.approx(small.prod(-1).abs().sum().item(), rel=1e-6)
     alpha32 = alpha.float().requires_grad_()
     volume_loss(alpha32).backward()
     alpha_ref = alpha.float().requires_grad_()
-    alpha_ref.prod(-1).sum().backward()
+    torch.log1p(alpha_ref.prod(-1).abs()).sum().backward()
     assert torch.allclose(alpha32.grad, alpha_ref.grad, rtol=1e-4, atol=1e-6)
 
 
@@ -172,3 +174,19 @@ def test_volume_loss_stays_finite_where_the_direct_product_is_not(dtype):
         loss.backward()
         assert torch.isfinite(loss) and torch.isfinite(a.grad).all()
     assert 0.0 <= volume_loss(small).item() < 1e-30  # the true value, 4e-104, rounds to 0 or a subnormal
+
+
+def test_volume_loss_is_bounded_below_so_minimising_it_shrinks_alpha():
+    # A signed product would be unbounded below (an odd number of negatives); |prod| is not.
+    alpha = torch.full((3, 52), 1.5)
+    alpha[:, 0] = -1.5
+    alpha.requires_grad_()
+    opt = torch.optim.SGD([alpha], lr=0.1)
+    first = volume_loss(alpha).item()
+    for _ in range(5):
+        opt.zero_grad()
+        loss = volume_loss(alpha)
+        assert loss.item() >= 0.0
+        loss.backward()
+        opt.step()
+    assert volume_loss(alpha).item() < first and alpha.detach().abs().max() <= 1.5

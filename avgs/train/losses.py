@@ -7,9 +7,6 @@ import math
 import torch
 import torch.nn.functional as F
 
-LOG_PRODUCT_LIMIT = 60.0
-"Cap on log|prod alpha| per point (e^60 ~ 1e26): a sum over 10^12 points stays finite in float32."
-
 
 def magnitude_loss(s_m: torch.Tensor, s_l: torch.Tensor, s_r: torch.Tensor, binaural_mag: torch.Tensor) -> torch.Tensor:
     """``L_m = MSE(s_m) + MSE(s_l) + MSE(s_r)``.
@@ -36,15 +33,25 @@ def log_abs_product(alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def volume_loss(alpha: torch.Tensor) -> torch.Tensor:
-    """``L_v = sum over points of prod_d alpha_{i,d}`` for the vicinity points alpha [M, D].
+    """``L_v = sum over points of log(1 + |prod_d alpha_{i,d}|)`` for the vicinity points alpha [M, D].
 
-    Computed as ``sign * exp(sum log|alpha|)``: a product of 52 numbers under- and
-    overflows float32 (and float16 at once), a sum of logs does not. The log-product is
-    capped at :data:`LOG_PRODUCT_LIMIT`, so the result is finite for any finite input,
-    float16 included (it is returned in float32).
+    The paper writes ``sum_i Prod(alpha_i)``, "encouraging the audio-guidance parameters to
+    be small". Two changes make that well posed, and both leave it unchanged where the
+    product is small (log(1 + p) = p - p^2/2 + ...), which is where alpha lives:
+
+    - alpha is signed (SH coefficients, quaternions) and a signed product is unbounded
+      below: minimising it drives rows with an odd number of negative entries to ever
+      larger magnitudes, the opposite of the stated intent. We penalise the magnitude.
+    - The gradient of a product of 52 numbers is itself a product of 51: it overflows
+      float32 for moderately large alpha and float16 almost at once. ``log(1 + p)`` caps
+      the gradient at ``1 / |alpha_d|`` per entry.
+
+    Computed as ``softplus(sum_d log|alpha_d|)``, never forming the product itself, so the
+    value and gradient are finite for any finite input, float16 included (the result is
+    float32).
     """
-    sign, log_abs = log_abs_product(alpha)
-    return (sign * torch.exp(log_abs.clamp(max=LOG_PRODUCT_LIMIT))).sum()
+    _, log_abs = log_abs_product(alpha)  # [M]
+    return torch.nn.functional.softplus(log_abs).sum()
 
 
 def total_loss(magnitude: torch.Tensor, volume: torch.Tensor, lambda_a: float) -> torch.Tensor:
