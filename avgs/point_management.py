@@ -145,12 +145,31 @@ class AudioPointManager:
         return removed
 
 
-def radius_inliers(X: torch.Tensor, min_neighbors: int, radius: float) -> torch.Tensor:
-    """bool [N]: points with at least ``min_neighbors`` others within ``radius`` (Open3D)."""
-    import open3d as o3d  # heavy; only when pruning
+def radius_inliers(X: torch.Tensor, min_neighbors: int, radius: float, backend: str = "auto") -> torch.Tensor:
+    """bool [N]: points with at least ``min_neighbors`` other points within ``radius``.
 
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(X.double().numpy()))
-    _, kept = cloud.remove_radius_outlier(nb_points=int(min_neighbors), radius=float(radius))
-    keep = torch.zeros(len(X), dtype=torch.bool)
-    keep[torch.as_tensor(list(kept), dtype=torch.long)] = True
-    return keep
+    That is Open3D's ``remove_radius_outlier(nb_points, radius)`` rule, which the paper uses
+    and which ``backend="open3d"`` calls. ``backend="scipy"`` applies the same rule with a
+    k-d tree (``scipy.spatial.cKDTree``), for machines where Open3D cannot be installed
+    (e.g. a minimal GPU image); a test pins the two to the same answer. ``"auto"`` prefers
+    Open3D.
+    """
+    if backend not in ("auto", "open3d", "scipy"):
+        raise ValueError(f"radius outlier backend must be 'auto', 'open3d' or 'scipy', got {backend!r}")
+    pts = X.detach().double().cpu().numpy()  # [N, 3]
+    if backend in ("auto", "open3d"):
+        try:
+            import open3d as o3d  # heavy; only when pruning
+        except ImportError:
+            if backend == "open3d":
+                raise
+        else:
+            cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+            _, kept = cloud.remove_radius_outlier(nb_points=int(min_neighbors), radius=float(radius))
+            keep = torch.zeros(len(X), dtype=torch.bool)
+            keep[torch.as_tensor(list(kept), dtype=torch.long)] = True
+            return keep
+    from scipy.spatial import cKDTree
+
+    counts = cKDTree(pts).query_ball_point(pts, r=float(radius), return_length=True)  # [N], self included
+    return torch.as_tensor(counts - 1 >= int(min_neighbors))

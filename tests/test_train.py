@@ -22,7 +22,7 @@ from avgs.checkpoint import load_checkpoint, save_checkpoint, untrained_checkpoi
 from avgs.cli import main as cli_main
 from avgs.config import PointManagementConfig
 from avgs.inference import SceneRenderer
-from avgs.point_management import AudioPointManager, update_points
+from avgs.point_management import AudioPointManager, radius_inliers, update_points
 from avgs.train.logging import log_paths
 from avgs.train.pipeline import quick_config, train_scene
 from avgs.train.stage2 import lr_factor
@@ -171,6 +171,20 @@ def test_prune_removes_isolated_points_with_open3d():
     assert mgr.maybe_prune(3, pts, opt) == 1
     assert pts.num_points == 50 and torch.equal(pts.alpha.detach(), kept_alpha)
     assert opt.state[pts.alpha]["exp_avg"].shape == (50, 2)
+
+
+def test_scipy_radius_outlier_rule_equals_open3d():
+    # Clusters of varied density plus scattered points: counts near the threshold of 8.
+    rng = np.random.default_rng(1)
+    centres = rng.uniform(-1, 1, (12, 3))
+    X = np.concatenate([c + rng.normal(0, s, (n, 3)) for c, s, n in zip(centres, rng.uniform(0.02, 0.1, 12),
+                                                                          rng.integers(3, 40, 12))])
+    X = torch.as_tensor(np.concatenate([X, rng.uniform(-1, 1, (200, 3))]))
+    for k, r in ((8, 0.1), (3, 0.05), (20, 0.2)):
+        o3d_keep = radius_inliers(X, k, r, backend="open3d")
+        scipy_keep = radius_inliers(X, k, r, backend="scipy")
+        assert 0 < int(o3d_keep.sum()) < len(X)
+        assert torch.equal(o3d_keep, scipy_keep)
 
 
 def test_update_points_respects_the_cap_path():
