@@ -1,23 +1,19 @@
-# The README's two commands. Both set everything up first (idempotent: scripts/setup.sh
-# skips every step whose result is already there), then do their job.
+# Shortcuts for the README's two commands (scripts/run.sh, scripts/test.sh), which need
+# nothing but bash on a fresh Debian machine.
 .PHONY: setup run test test-all lint
-
-PY := .venv/bin/python
 
 setup:
 	@bash scripts/setup.sh
 
-# The main job: the desktop explorer on the bundled demo scene.
-run: setup
-	.venv/bin/avgs-viewer
+run:
+	@bash scripts/run.sh
 
-# The whole test suite, headless: pytest-xvfb starts its own Xvfb for the GUI tests.
-test: setup
-	$(PY) -m pytest -m "not slow" -q
+test:
+	@bash scripts/test.sh
 
 # Also the slow training runs.
-test-all: setup
-	$(PY) -m pytest -q
+test-all:
+	@bash scripts/test.sh -m ""
 
 lint: setup
 	.venv/bin/lint-imports

@@ -75,6 +75,7 @@ class ControlPanel(QtWidgets.QWidget):
         self.meter_left, self.meter_right = QtWidgets.QProgressBar(), QtWidgets.QProgressBar()
         for meter, name in ((self.meter_left, "L"), (self.meter_right, "R")):
             meter.setRange(int(METER_FLOOR_DB * 10), 0)
+            meter.setValue(int(METER_FLOOR_DB * 10))  # silent until the first levels arrive
             meter.setFormat(f"{name} %v")
             meter.setTextVisible(False)
         self.levels = QtWidgets.QLabel("L - dB   R - dB   ILD - dB")
@@ -382,8 +383,10 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.engine is not None:
             if self.output is not None and self.output.available:
                 self.panel.show_meters(*self.engine.block_levels)
-            elif self.engine.current is not None:  # no device: show the buffer's own levels
-                left, right, _ = audio.levels(self.engine.current)
+            elif self.live is not None and self.live.last_result is not None:
+                # No device: show the newest render's levels as it would play (make-up gain, volume, pause).
+                gain = (self.engine.makeup_gain or 1.0) * (self.engine.volume if self.engine.playing else 0.0)
+                left, right, _ = audio.levels(self.live.last_result.binaural * gain)
                 self.panel.show_meters(left, right)
 
     # ------------------------------------------------------------------ mouse

@@ -167,6 +167,12 @@ def test_no_sound_card_is_reported_in_the_status_bar(window):
         pytest.skip("this machine has an audio output")
     assert window.audio_status.text().startswith("No audio")
     assert window.live.last_result is not None  # rendering goes on without a device
+    # The meters show the newest render as it would play: its levels after make-up gain and volume.
+    window._update_meters()
+    gain = window.engine.makeup_gain * window.engine.volume
+    left, right, _ = levels(window.live.last_result.binaural * gain)
+    assert window.panel.meter_left.value() == int(10 * max(left, -60.0)) > window.panel.meter_left.minimum()
+    assert window.panel.meter_right.value() == int(10 * max(right, -60.0)) > window.panel.meter_right.minimum()
 
 
 def test_bad_checkpoint_shows_an_error_dialog(qtbot, window, tmp_path):
