@@ -17,6 +17,7 @@ COMMANDS: dict[str, str] = {
     "eval": "Score baselines and checkpoints (MAG, ENV) per scene, environment and overall.",
     "render": "Binauralise a mono WAV for a listener pose with a trained checkpoint.",
     "info": "Print what a checkpoint holds.",
+    "prune": "Keep only the audio points some listener or source vicinity can use.",
     "bench": "Benchmark speed against error; writes benchmarks/REPORT.md.",
 }
 

@@ -21,9 +21,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from avgs.acoustics.fast import FastMasks, signed_direction
 from avgs.checkpoint import config_of, load_checkpoint, stft_of
 from avgs.data.frame import SceneFrame
 
+MAX_NORMALISED = 1e9
+"Positions farther than this from the scene's centre (normalised units; the scene spans ~[-1, 1]) are rejected: squared distances would overflow float32."
 SH_C0 = 0.28209479177387814
 "Degree-0 spherical-harmonics constant: rgb = 0.5 + SH_C0 * DC coefficient."
 
@@ -85,11 +88,18 @@ class SceneRenderer:
         self.history: list[dict] = list(ckpt.get("history", []))
         self.name: str = str(ckpt["scene"].get("name", ""))
         pts = ckpt["audio_points"]
-        model = AVGSModel(AudioPoints(pts["X"], pts["alpha"]), self.config.acoustic, self.stft.n_freq)
+        fixed_k = ckpt.get("vicinity_k")  # set by pruning (avgs.acoustics.prune): k kept from before
+        model = AVGSModel(
+            AudioPoints(pts["X"], pts["alpha"]),
+            self.config.acoustic,
+            self.stft.n_freq,
+            vicinity_k=None if fixed_k is None else int(fixed_k),
+        )
         if model.field is not None:
             model.field.load_state_dict(ckpt["field"])
         model.binauralizer.load_state_dict(ckpt["binauralizer"])
         self._model = model.to(self.device).eval().requires_grad_(False)
+        self._fast = FastMasks(self._model)
         self._source_n = ckpt["source"].detach().double().cpu().numpy().reshape(3)  # normalised
         self._lock = threading.RLock()
         self._source_cache: tuple[tuple, tuple] | None = None  # (key, (C_S, idx))
@@ -168,33 +178,37 @@ class SceneRenderer:
     def _cached_source(self, source_n: np.ndarray):
         key = tuple(float(v) for v in source_n)
         if self._source_cache is None or self._source_cache[0] != key:
-            src = torch.tensor(source_n, dtype=torch.float32, device=self.device)
-            self._source_cache = (key, self._model.source_context(src))
+            self._source_cache = (key, self._fast.source_context(key))
         return self._source_cache[1]
 
     def _masks(self, listener, yaw: float, source):
-        from avgs.acoustics.model import signed_direction
-
+        """(mixture [F], difference [F], listener vicinity [k], source vicinity [k], theta radians)."""
         listener_n = self.frame.to_normalised(_position(listener, "listener"))
         source_n = self._source_n if source is None else self.frame.to_normalised(_position(source, "source"))
         yaw = float(yaw)
         if not math.isfinite(yaw):
             raise ValueError(f"yaw must be a finite number of degrees, got {yaw!r}")
-        lis = torch.tensor(listener_n[None], dtype=torch.float32, device=self.device)  # [1, 3]
-        src = torch.tensor(source_n, dtype=torch.float32, device=self.device)  # [3]
-        theta = signed_direction(lis, torch.tensor([math.radians(yaw)], device=self.device), src)  # [1]
-        m = self._model.masks(lis, theta, src, cached_source=self._cached_source(source_n))
-        return m, float(theta[0])
+        lis = tuple(float(v) for v in listener_n)
+        for what, value, p in (("listener", listener, lis), ("source", source, source_n)):
+            if not all(abs(float(v)) <= MAX_NORMALISED for v in p):
+                raise ValueError(
+                    f"{what} {value!r} is {max(abs(float(v)) for v in p):.3g} normalised units from the scene's "
+                    f"centre; expected at most {MAX_NORMALISED:g} (the scene spans about [-1, 1])"
+                )
+        theta = signed_direction(lis, math.radians(yaw), source_n)
+        cached = self._cached_source(source_n)
+        mixture, difference, listener_idx = self._fast.masks(lis, theta, cached)
+        return mixture, difference, listener_idx, cached[1], theta
 
     def masks(self, listener, yaw: float, source=None) -> MaskResult:
         """Masks for a listener at ``listener`` (world) facing ``yaw`` degrees; ``source`` (world) defaults to the trained one."""
         with self._lock, torch.inference_mode():
-            m, theta = self._masks(listener, yaw, source)
+            mixture, difference, lis_idx, src_idx, theta = self._masks(listener, yaw, source)
             return MaskResult(
-                mixture=m.mixture[0].float().cpu().numpy(),
-                difference=m.difference[0].float().cpu().numpy(),
-                listener_vicinity=m.listener_vicinity[0].cpu().numpy(),
-                source_vicinity=m.source_vicinity.cpu().numpy(),
+                mixture=mixture.cpu().numpy(),
+                difference=difference.cpu().numpy(),
+                listener_vicinity=lis_idx.cpu().numpy(),
+                source_vicinity=src_idx.cpu().numpy(),
                 theta=math.degrees(theta),
             )
 
@@ -211,17 +225,27 @@ class SceneRenderer:
         if not np.all(np.isfinite(x)):
             raise ValueError("mono holds NaN or Inf samples")
         with self._lock, torch.inference_mode():
-            m, theta = self._masks(listener, yaw, source)
+            mixture, difference, lis_idx, src_idx, theta = self._masks(listener, yaw, source)
             spec = dsp.stft(torch.from_numpy(x).to(self.device)[None], self.stft)  # [1, F, N_t]
-            y = binaural_waveform(spec, m.mixture, m.difference, x.size, self.stft)[0]  # [2, T]
+            y = binaural_waveform(spec, mixture[None], difference[None], x.size, self.stft)[0]  # [2, T]
             return RenderResult(
-                mixture=m.mixture[0].float().cpu().numpy(),
-                difference=m.difference[0].float().cpu().numpy(),
-                listener_vicinity=m.listener_vicinity[0].cpu().numpy(),
-                source_vicinity=m.source_vicinity.cpu().numpy(),
+                mixture=mixture.cpu().numpy(),
+                difference=difference.cpu().numpy(),
+                listener_vicinity=lis_idx.cpu().numpy(),
+                source_vicinity=src_idx.cpu().numpy(),
                 theta=math.degrees(theta),
                 binaural=np.ascontiguousarray(y.float().cpu().numpy()),
             )
+
+    def stream(self, listener, yaw: float, source=None):
+        """A :class:`avgs.streaming.BinauralStream` for this pose: feed mono blocks, then ``flush()``.
+
+        The concatenated output equals :meth:`render` of the whole input (float rounding).
+        """
+        from avgs.streaming import BinauralStream
+
+        m = self.masks(listener, yaw, source)
+        return BinauralStream(m.mixture, m.difference, self.stft)
 
     def __repr__(self) -> str:
         return f"SceneRenderer({self.name!r}: {len(self._points)} audio points, {self.sample_rate} Hz)"

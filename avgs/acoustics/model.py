@@ -52,10 +52,20 @@ def apply_masks(mono_mag: torch.Tensor, mixture: torch.Tensor, difference: torch
 class AVGSModel(nn.Module):
     """Audio points G_a, acoustic field F and binauralizer B."""
 
-    def __init__(self, points: AudioPoints, cfg: AcousticConfig | None = None, n_freq: int = STFT.n_freq):
+    def __init__(
+        self,
+        points: AudioPoints,
+        cfg: AcousticConfig | None = None,
+        n_freq: int = STFT.n_freq,
+        vicinity_k: int | None = None,
+    ):
         super().__init__()
         self.cfg = cfg = cfg or AcousticConfig()
         self.points = points
+        if vicinity_k is not None and int(vicinity_k) < 1:
+            raise ValueError(f"vicinity_k must be a positive number of points, got {vicinity_k!r}")
+        self.fixed_k = None if vicinity_k is None else int(vicinity_k)
+        "An explicit k (a pruned checkpoint keeps its original k); None: k from the percentile."
         self.field = (
             AcousticField(points.alpha_dim, cfg.field_width, cfg.field_layers, cfg.context_dim)
             if cfg.use_context
@@ -75,7 +85,9 @@ class AVGSModel(nn.Module):
 
     @property
     def vicinity_k(self) -> int:
-        """k = ceil(percentile % of N), for the listener and the source each."""
+        """k = ceil(percentile % of N) (or the explicit ``vicinity_k``, capped at N), listener and source each."""
+        if self.fixed_k is not None:
+            return min(self.fixed_k, self.points.num_points)
         return vicinity_size(self.points.num_points, self.cfg.vicinity_percentile)
 
     def vicinity(self, positions: torch.Tensor) -> torch.Tensor:

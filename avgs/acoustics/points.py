@@ -43,7 +43,8 @@ def alpha_dim(spec: str) -> int:
 def alpha_from_features(features: dict[str, torch.Tensor], spec: str) -> torch.Tensor:
     """Concatenate per-point features ``{kind: [N, d]}`` in spec order -> ``[N, D]``.
 
-    Quaternions ('r') are normalised to unit length (a zero quaternion stays zero).
+    Quaternions ('r') are normalised to unit length, robustly at any magnitude (a zero
+    quaternion stays zero). Non-finite features are rejected.
     """
     parts = []
     for kind in parse_alpha_spec(spec):
@@ -52,7 +53,14 @@ def alpha_from_features(features: dict[str, torch.Tensor], spec: str) -> torch.T
         f = torch.as_tensor(features[kind]).detach().float().reshape(len(features[kind]), -1)  # [N, d]
         if f.shape[1] != ALPHA_KINDS[kind]:
             raise ValueError(f"G's {kind!r} parameters have {f.shape[1]} dims, expected {ALPHA_KINDS[kind]}")
+        if not torch.isfinite(f).all():
+            bad = int((~torch.isfinite(f)).any(-1).sum())
+            raise ValueError(f"G's {kind!r} parameters hold NaN or Inf in {bad} of {len(f)} Gaussians; expected finite values")
         if kind == "r":
+            # Divide by the largest entry first: the norm of a tiny (1e-30) or huge (1e20)
+            # quaternion under- or overflows float32. A zero quaternion stays zero.
+            big = f.abs().amax(dim=-1, keepdim=True)  # [N, 1]
+            f = torch.where(big > 0, f / big.clamp_min(torch.finfo(f.dtype).tiny), f)
             f = f / f.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         parts.append(f)
     return torch.cat(parts, dim=-1)

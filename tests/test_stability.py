@@ -1,0 +1,298 @@
+"""Numerical stability on hard cases: each gives finite, bounded, sensible output with a
+defined behaviour, and none warns or prints NaN.
+
+Energy bound (checked on random poses and signals below): with per-ear gains
+``g_c(f) = m_m(f) (1 +- m_d(f))`` and ``G_c = max_f |g_c(f)|``, the output energy of ear
+c is at most ``ENERGY_FACTOR * G_c^2`` times the input's. The STFT-multiply-iSTFT is a
+least-squares inverse of a modified STFT, whose norm is at most ``G_c`` in the interior;
+the reflect padding at the two ends can add up to the energy of the padded edge
+samples, hence a factor above 1 for short inputs (it tends to 1 for long ones).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from avgs.acoustics.points import AudioPoints, alpha_from_features
+from avgs.checkpoint import untrained_checkpoint
+from avgs.config import AcousticConfig, TrainConfig
+from avgs.data.frame import SceneFrame
+from avgs.inference import SceneRenderer
+from avgs.streaming import BinauralStream, gains_of
+from avgs.train.losses import volume_loss
+
+pytestmark = pytest.mark.filterwarnings("error")  # any warning fails these tests
+
+ROOM = np.array([[0.0, 0.0, 0.0], [6.0, 4.0, 3.0]])
+SOURCE = np.array([4.5, 2.5, 1.2])
+SR = 22050
+ENERGY_FACTOR = 2.0
+"Documented bound: ear energy <= ENERGY_FACTOR * (max gain of that ear)^2 * input energy."
+
+
+def room_points(n=800, seed=0, scale=1.0):
+    return np.random.default_rng(seed).uniform(ROOM[0], ROOM[1], size=(n, 3)) * scale
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    pts = room_points()
+    return SceneRenderer(untrained_checkpoint(pts, SOURCE, frame=SceneFrame(ROOM.mean(0), 1 / 3), seed=4))
+
+
+def noise(n, seed=0):
+    return np.random.default_rng(seed).standard_normal(n).astype(np.float32)
+
+
+def check_output(out, length, capsys=None):
+    y = out.binaural
+    assert y.shape == (2, length) and y.dtype == np.float32
+    assert np.all(np.isfinite(y)) and np.all(np.isfinite(out.mixture)) and np.all(np.isfinite(out.difference))
+    assert np.all(out.mixture >= 0) and np.all(np.abs(out.difference) < 1)
+    if capsys is not None:
+        text = capsys.readouterr()
+        assert "nan" not in (text.out + text.err).lower()
+
+
+def energy_bound_holds(out, x) -> bool:
+    gains = gains_of(out.mixture, out.difference)  # [2, F]
+    e_in = float(np.sum(x.astype(np.float64) ** 2))
+    e_out = np.sum(out.binaural.astype(np.float64) ** 2, axis=1)  # [2]
+    bound = ENERGY_FACTOR * np.max(np.abs(gains), axis=1) ** 2 * e_in
+    return bool(np.all(e_out <= bound + 1e-9))
+
+
+# -- geometry -------------------------------------------------------------------------
+
+
+def test_listener_exactly_on_an_audio_point(renderer, capsys):
+    out = renderer.render(renderer.points[17].astype(np.float64), 30.0, noise(4000))
+    check_output(out, 4000, capsys)
+    assert 17 in out.listener_vicinity  # distance 0: the nearest point, direction guarded to zero
+
+
+def test_listener_exactly_on_the_source(renderer, capsys):
+    out = renderer.render(renderer.source, 45.0, noise(4000))
+    check_output(out, 4000, capsys)
+    assert out.theta == 0.0  # defined: a source at the listener counts as straight ahead
+    assert set(out.listener_vicinity) == set(out.source_vicinity)
+
+
+def test_two_points_at_the_same_position(capsys):
+    pts = room_points(300)
+    pts[1] = pts[0]
+    pts[2] = pts[0]
+    r = SceneRenderer(untrained_checkpoint(pts, SOURCE, seed=1))
+    out = r.render(pts[0], 0.0, noise(3000))
+    check_output(out, 3000, capsys)
+    assert {0, 1, 2} <= set(out.listener_vicinity)
+
+
+@pytest.mark.parametrize("n_points, percentile", [(1, 15.0), (2, 15.0), (5, 100.0), (40, 100.0)])
+def test_vicinity_as_large_as_the_point_set(n_points, percentile, capsys):
+    cfg = TrainConfig()
+    cfg.acoustic = AcousticConfig(vicinity_percentile=percentile)
+    pts = room_points(n_points, seed=2) if n_points > 1 else [[1.0, 1.0, 1.0]]
+    r = SceneRenderer(untrained_checkpoint(pts, SOURCE, config=cfg, frame=SceneFrame(ROOM.mean(0), 1 / 3)))
+    out = r.render((2.0, 2.0, 1.6), 10.0, noise(2000))
+    check_output(out, 2000, capsys)
+    assert len(out.listener_vicinity) == r.vicinity_size <= n_points
+
+
+def test_explicit_k_larger_than_the_points_is_capped(capsys):
+    ckpt = untrained_checkpoint(room_points(30), SOURCE)
+    ckpt["vicinity_k"] = 1000
+    r = SceneRenderer(ckpt)
+    assert r.vicinity_size == 30
+    check_output(r.render((1.0, 1.0, 1.0), 0.0, noise(1000)), 1000, capsys)
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1e6])
+def test_scene_coordinates_at_extreme_scales(scale, capsys):
+    """The same scene in micrometres or in megametres renders the same (the frame normalises)."""
+    unit = SceneRenderer(untrained_checkpoint(room_points(), SOURCE, seed=5))
+    scaled = SceneRenderer(untrained_checkpoint(room_points(scale=scale), SOURCE * scale, seed=5))
+    x = noise(3000)
+    a = unit.render((2.0, 1.5, 1.6), 70.0, x)
+    b = scaled.render((2.0 * scale, 1.5 * scale, 1.6 * scale), 70.0, x)
+    check_output(b, 3000, capsys)
+    assert np.allclose(a.binaural, b.binaural, rtol=1e-4, atol=1e-5)
+    assert set(a.listener_vicinity) == set(b.listener_vicinity)
+
+
+def test_positions_far_outside_the_scene_are_rejected(renderer):
+    with pytest.raises(ValueError, match="normalised units"):
+        renderer.render((1e300, 0.0, 0.0), 0.0, noise(100))
+    with pytest.raises(ValueError, match="finite"):
+        renderer.render((math.inf, 0.0, 0.0), 0.0, noise(100))
+    with pytest.raises(ValueError, match="yaw"):
+        renderer.render((1.0, 1.0, 1.0), math.nan, noise(100))
+
+
+# -- signals --------------------------------------------------------------------------
+
+
+def test_silent_input_gives_exact_silence(renderer, capsys):
+    out = renderer.render((2.0, 2.0, 1.6), 0.0, np.zeros(5000, dtype=np.float32))
+    check_output(out, 5000, capsys)
+    assert np.all(out.binaural == 0.0)
+
+
+@pytest.mark.parametrize("kind", ["full-scale", "clipped"])
+def test_full_scale_and_clipped_input(renderer, kind, capsys):
+    t = np.arange(SR) / SR
+    if kind == "full-scale":
+        x = np.sign(np.sin(2 * np.pi * 220 * t)).astype(np.float32)  # +-1 square wave
+        x[::97] = -x[::97]
+    else:
+        x = np.clip(3.0 * np.sin(2 * np.pi * 440 * t), -1, 1).astype(np.float32)  # hard-clipped sine
+    out = renderer.render((1.5, 2.5, 1.6), -60.0, x)
+    check_output(out, len(x), capsys)
+    assert energy_bound_holds(out, x)
+
+
+def test_dc_input_gives_constant_output_away_from_the_ends(renderer, capsys):
+    x = np.full(SR, 0.5, dtype=np.float32)
+    out = renderer.render((3.0, 1.0, 1.6), 20.0, x)
+    check_output(out, SR, capsys)
+    inner = out.binaural[:, 1024:-1024]  # identical frames -> identical overlap-added output
+    assert np.allclose(inner, inner[:, :1], rtol=1e-4, atol=1e-6)
+
+
+def test_pure_tone_keeps_its_frequency(renderer, capsys):
+    f0 = 43 * SR / 512  # a bin centre, ~1851 Hz
+    x = np.sin(2 * np.pi * f0 * np.arange(SR) / SR).astype(np.float32)
+    out = renderer.render((2.0, 3.0, 1.6), 100.0, x)
+    check_output(out, SR, capsys)
+    for ch in out.binaural:
+        spectrum = np.abs(np.fft.rfft(ch * np.hanning(SR)))
+        if spectrum.max() > 1e-6:
+            assert abs(np.argmax(spectrum) * SR / SR - f0) < 2.0  # peak at f0 (1 Hz bins)
+    assert energy_bound_holds(out, x)
+
+
+@pytest.mark.parametrize("length", [1, 2, 3, 100, 255, 256, 257, 511])
+def test_input_shorter_than_one_stft_frame(renderer, length, capsys):
+    x = noise(length, seed=length)
+    out = renderer.render((2.0, 2.0, 1.6), 0.0, x)
+    check_output(out, length, capsys)
+    assert energy_bound_holds(out, x)
+    stream = renderer.stream((2.0, 2.0, 1.6), 0.0)
+    y = np.concatenate([stream.process(x[i : i + 50]) for i in range(0, length, 50)] + [stream.flush()], axis=1)
+    assert np.allclose(y, out.binaural, atol=1e-5)
+
+
+def test_ten_minutes_streamed_in_blocks_equal_one_shot(renderer):
+    x = noise(10 * 60 * SR, seed=9) * 0.3  # 10 min, 13.2 M samples
+    one_shot = renderer.render((2.5, 1.5, 1.6), 135.0, x).binaural
+    stream = renderer.stream((2.5, 1.5, 1.6), 135.0)
+    sizes = np.random.default_rng(0).integers(1, 20000, size=4000)
+    bounds = np.minimum(np.concatenate([[0], np.cumsum(sizes)]), len(x))
+    bounds = np.unique(np.append(bounds, len(x)))
+    pieces, done = [], 0
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        y = stream.process(x[a:b])
+        assert y.shape[1] == 0 or (done + y.shape[1] <= b)  # output never runs ahead of input
+        done += y.shape[1]
+        pieces.append(y)
+        assert b - done <= stream.latency  # and lags by at most the documented latency
+    pieces.append(stream.flush())
+    y = np.concatenate(pieces, axis=1)
+    assert y.shape == one_shot.shape
+    assert np.max(np.abs(y - one_shot)) <= 1e-5 * max(1.0, float(np.max(np.abs(one_shot))))
+    with pytest.raises(ValueError, match="flushed"):
+        stream.process(x[:10])
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_nan_or_inf_input_is_rejected(renderer, bad):
+    x = noise(1000)
+    x[500] = bad
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        renderer.render((2.0, 2.0, 1.6), 0.0, x)
+    stream = renderer.stream((2.0, 2.0, 1.6), 0.0)
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        stream.process(x)
+
+
+# -- G and alpha ----------------------------------------------------------------------
+
+
+def test_zero_and_unnormalised_quaternions_in_g():
+    n = 6
+    quats = torch.tensor([[0.0, 0, 0, 0], [2.0, 0, 0, 0], [1e-30, 0, 0, 1e-30], [3, 4, 0, 0], [1e20, 1e20, 0, 0], [0.5, 0.5, 0.5, 0.5]])
+    sh = torch.randn(n, 48)
+    alpha = alpha_from_features({"sh": sh, "r": quats}, "sh+r")
+    assert torch.isfinite(alpha).all()
+    q = alpha[:, 48:]
+    assert torch.equal(q[0], torch.zeros(4))  # a zero quaternion stays zero: no direction to give
+    assert torch.allclose(q[1:].norm(dim=-1), torch.ones(n - 1), atol=1e-5)
+    with pytest.raises(ValueError, match="'s' parameters hold NaN or Inf"):
+        alpha_from_features({"s": torch.tensor([[-math.inf, 0.0, 0.0]])}, "s")  # log of a zero scale
+    # A checkpoint whose G holds such quaternions and zero scales still loads and renders.
+    g = {"means": torch.zeros(n, 3), "quats": quats, "log_scales": torch.full((n, 3), -30.0), "sh": sh.reshape(n, 16, 3)}
+    r = SceneRenderer(untrained_checkpoint(room_points(100), SOURCE, gaussians=g))
+    assert np.all(np.isfinite(r.gaussians.rgb))
+    check_output(r.render((1.0, 1.0, 1.0), 0.0, noise(500)), 500)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float16])
+def test_volume_loss_over_52_dims_is_finite_and_non_negative(dtype):
+    g = torch.Generator().manual_seed(0)
+    rows = [
+        torch.randn(64, 52, generator=g) * 0.1,  # tiny products (underflow directly)
+        torch.randn(64, 52, generator=g) * 100.0,  # huge products (overflow directly)
+        torch.zeros(4, 52),
+        torch.full((4, 52), 65504.0 if dtype == torch.float16 else 3e38),  # the largest finite values
+        -torch.ones(3, 52),
+    ]
+    for alpha in rows:
+        a = alpha.to(dtype).requires_grad_(True)
+        loss = volume_loss(a)
+        loss.backward()
+        assert torch.isfinite(loss) and loss >= 0
+        assert torch.isfinite(a.grad).all()
+    # Where the direct product is representable, it is sum log(1 + |prod|) of it (float64 reference).
+    alpha = (torch.rand(32, 52, generator=g) * 1.5 + 0.3) * torch.sign(torch.randn(32, 52, generator=g))
+    direct = torch.log1p(alpha.double().prod(-1).abs()).sum()
+    assert torch.isfinite(alpha.prod(-1)).all()
+    assert volume_loss(alpha.to(dtype)).double().item() == pytest.approx(direct.item(), rel=1e-3 if dtype == torch.float16 else 1e-5)
+
+
+# -- randomised poses -----------------------------------------------------------------
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    x=st.floats(-1.0, 7.0),
+    y=st.floats(-1.0, 5.0),
+    z=st.floats(0.0, 3.0),
+    yaw=st.floats(-720.0, 720.0),
+    length=st.integers(1, 6000),
+    seed=st.integers(0, 2**16),
+    level=st.sampled_from([0.0, 1e-6, 1.0, 1e3]),
+)
+def test_random_poses_keep_energy_within_the_bound(renderer, x, y, z, yaw, length, seed, level):
+    sig = noise(length, seed) * np.float32(level)
+    out = renderer.render((x, y, z), yaw, sig)
+    check_output(out, length)
+    assert energy_bound_holds(out, sig)
+    assert -180.0 <= out.theta <= 180.0
+
+
+def test_stream_rejects_mismatched_masks():
+    with pytest.raises(ValueError, match="bins"):
+        BinauralStream(np.ones(10), np.zeros(10))
+    with pytest.raises(ValueError, match="same length"):
+        BinauralStream(np.ones(257), np.zeros(10))
+
+
+def test_audio_points_reject_non_finite_values():
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        AudioPoints(torch.tensor([[0.0, math.nan, 0.0]]), torch.zeros(1, 4))
