@@ -65,6 +65,10 @@ class GaussianConfig:
     "Reset opacities every this many iterations (3D-GS)."
     prune_opacity: float = 0.005
     "Prune Gaussians whose opacity falls below this (3D-GS)."
+    grow_scale3d: float = 0.01
+    "Above the gradient threshold, clone Gaussians at most this large (x scene extent), split larger ones (3D-GS)."
+    prune_scale3d: float = 0.1
+    "After the first opacity reset, prune Gaussians larger than this (x scene extent) (3D-GS)."
     max_gaussians: int = 200_000
     "Hard cap on the number of Gaussians (keeps CPU training and drawing tractable)."
     init_points: int = 20_000
@@ -73,6 +77,8 @@ class GaussianConfig:
     "Train on frames downscaled by this factor."
     backend: Literal["auto", "torch", "gsplat"] = "auto"
     "Rasterizer: gsplat when CUDA is present, else our pure-PyTorch rasterizer."
+    log_every: int = 100
+    "Write a stage-1 log record (loss, PSNR, Gaussian count) every this many iterations."
 
 
 @dataclass
