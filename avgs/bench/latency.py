@@ -1,0 +1,152 @@
+"""Inference latency per pose: whole renders, the stages inside them, long inputs,
+before/after the fast path, and reduced precision.
+
+A "pose" is one call of :meth:`SceneRenderer.render` on a 1 s clip at a new listener
+position (the source stays put, so C_S comes from the cache, as in the viewer). Poses
+cycle over random positions inside the scene box; every figure is a median (and 95th
+percentile) over ``repeats`` calls after ``warmup`` untimed ones.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from avgs.bench.timing import Stopwatch, Timing, time_calls
+
+STAGES = ("vicinity", "field", "binauralizer", "stft", "istft")
+
+
+def _sync(device) -> None:
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize()
+
+
+def random_poses(renderer, n: int, seed: int = 0) -> list[tuple[np.ndarray, float]]:
+    """``n`` (listener world [3], yaw degrees) inside the scene box (middle 80 %)."""
+    rng = np.random.default_rng(seed)
+    lo, hi = np.asarray(renderer.bounds, dtype=np.float64)
+    pad = 0.1 * (hi - lo)
+    return [(rng.uniform(lo + pad, hi - pad), float(rng.uniform(-180, 180))) for _ in range(n)]
+
+
+def test_signal(seconds: float, sample_rate: int, seed: int = 0) -> np.ndarray:
+    return (0.3 * np.random.default_rng(seed).standard_normal(int(round(seconds * sample_rate)))).astype(np.float32)
+
+
+def time_render(render, poses, mono, repeats: int, warmup: int = 3, device="cpu") -> Timing:
+    """Median/p95 of ``render(listener, yaw, mono)`` cycling over ``poses``."""
+    state = {"i": 0}
+
+    def call():
+        lis, yaw = poses[state["i"] % len(poses)]
+        state["i"] += 1
+        render(lis, yaw, mono)
+
+    return time_calls(call, repeats=repeats, warmup=warmup, sync=lambda: _sync(device))
+
+
+def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
+    """Time the fast path's stages one by one, as :meth:`SceneRenderer.render` runs them."""
+    from avgs import dsp
+    from avgs.acoustics.fast import signed_direction
+
+    fast = renderer._fast
+    dev = renderer.device
+    cached = fast.source_context(tuple(float(v) for v in renderer._source_n))
+    sw = Stopwatch()
+    x = torch.from_numpy(mono)
+    with torch.inference_mode():
+        for i in range(repeats + 3):
+            lis_w, yaw = poses[i % len(poses)]
+            lis = tuple(float(v) for v in renderer.frame.to_normalised(lis_w))
+            theta = signed_direction(lis, math.radians(yaw), renderer._source_n)
+            timed = i >= 3
+
+            def run(name, fn):
+                if not timed:
+                    return fn()
+                with sw(name):
+                    out = fn()
+                    _sync(dev)
+                return out
+
+            idx = run("vicinity", lambda: fast.vicinity(lis))
+            ctx = None
+            if fast.use_context:
+                c_l = run("field", lambda: fast.context(lis, idx))
+                ctx = torch.cat([cached[0], c_l])
+            mix, diff = run("binauralizer", lambda: fast.binauralize(lis[:2], theta, ctx))
+            spec = run("stft", lambda: dsp.stft(x.to(dev)[None], renderer.stft))
+            gains = torch.stack([mix * (1 + diff), mix * (1 - diff)])[..., None]  # [2, F, 1]
+            run("istft", lambda: dsp.istft(spec[0][None] * gains, mono.size, renderer.stft).cpu())
+    return sw.timings()
+
+
+def with_precision(renderer, dtype: torch.dtype):
+    """A copy of ``renderer`` whose fast path runs its networks in ``dtype`` (for measurement)."""
+    import copy
+
+    from avgs.acoustics.fast import FastMasks
+
+    other = copy.copy(renderer)
+    other._fast = FastMasks(renderer._model, dtype=dtype)
+    other._source_cache = None
+    other._lock = type(renderer._lock)()
+    return other
+
+
+def precision_error(renderer, other, poses, mono) -> float:
+    """Largest |difference| of the binaural outputs of two renderers over ``poses`` (input peak 1)."""
+    worst = 0.0
+    for lis, yaw in poses:
+        a = renderer.render(lis, yaw, mono).binaural
+        b = other.render(lis, yaw, mono).binaural
+        worst = max(worst, float(np.max(np.abs(a - b))) / max(1e-12, float(np.max(np.abs(mono)))))
+    return worst
+
+
+def measure(renderer, repeats: int = 50, long_seconds=(10.0, 60.0), long_repeats: int = 3, compare: bool = True,
+            precisions=("bfloat16",), progress=None) -> dict:
+    """All latency figures of one renderer (its device); see the module docstring."""
+    from avgs.bench.reference import NaivePath, PreviousPath
+
+    dev = renderer.device
+    sr = renderer.sample_rate
+    mono = test_signal(1.0, sr)
+    poses = random_poses(renderer, 64)
+    say = progress or (lambda msg: None)
+    out: dict = {"device": str(dev), "points": int(len(renderer.points)), "k": int(renderer.vicinity_size)}
+    say(f"latency ({dev}): render")
+    out["render"] = time_render(lambda l, y, m: renderer.render(l, y, m), poses, mono, repeats, device=dev).to_dict()
+    masks_t = time_render(lambda l, y, m: renderer.masks(l, y), poses, mono, repeats, device=dev)
+    out["masks"] = masks_t.to_dict()
+    say(f"latency ({dev}): stages")
+    out["stages"] = {k: v.to_dict() for k, v in stage_breakdown(renderer, poses, mono, repeats).items()}
+    if compare:
+        for path_cls in (PreviousPath, NaivePath):
+            say(f"latency ({dev}): {path_cls.name}")
+            path = path_cls(renderer)
+            n = repeats if path_cls is PreviousPath else max(5, repeats // 3)
+            t = time_render(path.render, poses, mono, n, device=dev)
+            err = max(float(np.max(np.abs(path.render(l, y, mono) - renderer.render(l, y, mono).binaural))) for l, y in poses[:4])
+            out.setdefault("paths", {})[path_cls.name] = {**t.to_dict(), "max_abs_diff": err}
+    out["long"] = {}
+    for seconds in long_seconds:
+        say(f"latency ({dev}): {seconds:g} s of audio")
+        sig = test_signal(seconds, sr, seed=1)
+        t = time_render(lambda l, y, m: renderer.render(l, y, m), poses, sig, long_repeats, warmup=1, device=dev)
+        out["long"][f"{seconds:g}"] = {**t.to_dict(), "realtime_factor": seconds / max(t.median, 1e-12)}
+    out["precision"] = {}
+    for name in precisions:
+        dtype = getattr(torch, name)
+        say(f"latency ({dev}): {name}")
+        try:
+            other = with_precision(renderer, dtype)
+            t = time_render(lambda l, y, m: other.render(l, y, m), poses, mono, max(5, repeats // 3), device=dev)
+            out["precision"][name] = {**t.to_dict(), "max_abs_diff": precision_error(renderer, other, poses[:4], mono)}
+        except (RuntimeError, TypeError) as exc:  # a dtype the device cannot run
+            out["precision"][name] = {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0]}"}
+    return out

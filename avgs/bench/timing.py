@@ -1,0 +1,85 @@
+"""Small, honest timing helpers: wall-clock samples, medians and 95th percentiles.
+
+Our machines are shared and noisy, so every figure is a median over repeats, and
+comparisons are always measured side by side in one run.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Seconds per call over ``n`` repeats."""
+
+    samples: tuple[float, ...]
+
+    @property
+    def n(self) -> int:
+        return len(self.samples)
+
+    @property
+    def median(self) -> float:
+        return statistics.median(self.samples)
+
+    @property
+    def p95(self) -> float:
+        return float(np.percentile(np.asarray(self.samples), 95))
+
+    @property
+    def median_ms(self) -> float:
+        return 1e3 * self.median
+
+    @property
+    def p95_ms(self) -> float:
+        return 1e3 * self.p95
+
+    def to_dict(self) -> dict:
+        return {"n": self.n, "median_ms": self.median_ms, "p95_ms": self.p95_ms}
+
+
+def time_calls(fn: Callable[[], object], repeats: int = 20, warmup: int = 2, sync: Callable[[], None] | None = None) -> Timing:
+    """Call ``fn`` ``warmup`` times untimed, then ``repeats`` times timed (``sync`` after each, e.g. CUDA)."""
+    for _ in range(warmup):
+        fn()
+        if sync:
+            sync()
+    samples = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        if sync:
+            sync()
+        samples.append(time.perf_counter() - t0)
+    return Timing(tuple(samples))
+
+
+class Stopwatch:
+    """Accumulates named sections: ``with sw("vicinity"): ...``; ``sw.timings()`` per name."""
+
+    def __init__(self) -> None:
+        self._samples: dict[str, list[float]] = {}
+        self._name: str | None = None
+        self._t0 = 0.0
+
+    def __call__(self, name: str) -> "Stopwatch":
+        self._name = name
+        return self
+
+    def __enter__(self) -> "Stopwatch":
+        self._t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        assert self._name is not None
+        self._samples.setdefault(self._name, []).append(time.perf_counter() - self._t0)
+        self._name = None
+
+    def timings(self) -> dict[str, Timing]:
+        return {k: Timing(tuple(v)) for k, v in self._samples.items()}
