@@ -1,0 +1,40 @@
+"""Shared fixtures: synthetic scenes from ``avgs synth`` (generated once per session).
+
+- ``quick_scene``: an office scene made with ``--quick`` (16 train + 4 val poses, 64x48
+  frames), its own data root.
+- ``quick_presets``: one ``--quick`` scene of every preset in one data root whose
+  position.json already held a foreign entry (``"real_scene"``) before generation.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+FOREIGN_ENTRY = {"real_scene": {"source_position": [0.1, -0.2, 0.3]}}
+
+
+@pytest.fixture(scope="session")
+def quick_scene(tmp_path_factory) -> Path:
+    """Path of a quick synthetic office scene (DATA_ROOT/office_quick)."""
+    from avgs.data.synth.writer import SynthConfig, write_scene
+
+    root = tmp_path_factory.mktemp("synth_quick")
+    result = write_scene(root, "office_quick", SynthConfig.quick_config("office", seed=0, workers=1), progress=False)
+    return result.scene_dir
+
+
+@pytest.fixture(scope="session")
+def quick_presets(tmp_path_factory) -> dict[str, Path]:
+    """{preset: scene folder} of quick scenes of every preset in one data root."""
+    from avgs.data.synth.presets import PRESETS
+    from avgs.data.synth.writer import SynthConfig, write_scene
+
+    root = tmp_path_factory.mktemp("synth_presets")
+    (root / "position.json").write_text(json.dumps(FOREIGN_ENTRY))
+    return {
+        preset: write_scene(root, f"{preset}_q", SynthConfig.quick_config(preset, seed=3, workers=1), progress=False).scene_dir
+        for preset in PRESETS
+    }
