@@ -304,7 +304,7 @@ def _apartment(rng: np.random.Generator, seed: int) -> SceneSpec:
         footprint=_rect(0, 0, w, d),
         height=h,
         wall_materials=["plasterboard", "plasterboard", "curtains_velvet", "wooden_lining"],
-        floors=[Region("floor", "wood_16mm", _rect(0, 0, w, d))],
+        floors=[Region("floor", "carpet_hairy", _rect(0, 0, w, d))],
         ceilings=[Region("ceiling", "ceiling_plasterboard", _rect(0, 0, w, d))],
         source=source,
         boxes=boxes,

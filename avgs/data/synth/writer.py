@@ -391,7 +391,7 @@ def _scene_json(spec, cfg, settings, frame, n_train, n_val, rt60, poses) -> dict
         "materials": {m: material_record(m) for m in materials},
         "simulation": settings.to_dict(),
         "simulator": _simulator_versions(),
-        "hrtf": "MIT KEMAR normal pinna (Gardner & Martin 1994), from the slab package; both ears at the head centre",
+        "hrtf": "MIT KEMAR normal pinna (Gardner & Martin 1994), from the slab package, diffuse-field equalised; both ears at the head centre",
         "rt60": rt60,
         "signals": {"train": "speech", "val": "music", "sample_rate": settings.sample_rate},
         "frames": {"train": [1, n_train], "val": [n_train + 1, n_train + n_val]},
