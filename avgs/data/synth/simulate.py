@@ -15,7 +15,8 @@ Public contract (the benchmarks call it)::
 
 ``binaural_rirs`` is a pure function of its arguments: pyroomacoustics' random generator
 (ray tracing, tail synthesis) is seeded from them, so a pose gives the same response in
-any process and in any order.
+any process and in any order. That generator is global to the process: call it from one
+thread at a time (use processes for parallelism, as ``avgs synth`` does).
 """
 
 from __future__ import annotations
@@ -214,10 +215,11 @@ def rt60(rir: np.ndarray, sample_rate: int = SAMPLE_RATE, band_hz: float | None 
     return value if value > 0 and math.isfinite(value) else float("nan")
 
 
-def rt60_summary(rirs: list[np.ndarray], sample_rate: int = SAMPLE_RATE) -> dict:
+def rt60_summary(rirs: list[np.ndarray], sample_rate: int = SAMPLE_RATE, ray_tracing: bool = True) -> dict:
     """Median RT60 over poses and both ears: broadband and per octave band, seconds.
 
-    ``rirs``: binaural responses, each ``[2, L]``."""
+    ``rirs``: binaural responses, each ``[2, L]``. ``ray_tracing=False`` adds a note that
+    the responses hold image sources only, whose truncated tail makes the RT60 too short."""
 
     def median(values):
         v = np.asarray([x for x in values if math.isfinite(x)])
@@ -225,13 +227,16 @@ def rt60_summary(rirs: list[np.ndarray], sample_rate: int = SAMPLE_RATE) -> dict
 
     broadband = [rt60(ear, sample_rate) for r in rirs for ear in r]
     bands = {str(b): median(rt60(ear, sample_rate, b) for r in rirs for ear in r) for b in RT60_BANDS_HZ}
-    return {
+    out = {
         "broadband_s": median(broadband),
         "bands_s": bands,
         "method": "pyroomacoustics.experimental.measure_rt60(decay_db=30) on the binaural RIRs; "
         "median over poses and ears; octave bands by 4th-order Butterworth band-pass",
         "poses": len(rirs),
     }
+    if not ray_tracing:
+        out["note"] = "image sources only (no ray-traced tail): far shorter than the room's real RT60"
+    return out
 
 
 # -- scenes on disk --------------------------------------------------------------------

@@ -305,7 +305,7 @@ def write_scene(out_root, scene_id: str, cfg: SynthConfig, *, overwrite: bool = 
     total = int(round((len(poses) + 0.5) * sr))
     mono = scene_source(n_train + 0.5, total / sr, cfg.seed, sr)  # [T] speech (train), music (val)
     binaural = binaural_track(mono, rirs, sr)  # [2, T]
-    rt60 = rt60_summary(rirs[:RT60_MAX_POSES], sr)
+    rt60 = rt60_summary(rirs[:RT60_MAX_POSES], sr, settings.ray_tracing)
 
     frame = SceneFrame.from_dict(normalisation(spec, poses))
     tmp = out_root / f".{scene_id}.tmp-{os.getpid()}"
