@@ -2,10 +2,12 @@
 
 Public coordinates are the scene's **world** frame, yaw in **degrees** counter-clockwise
 from +x (ARCHITECTURE.md); the conversion to the model's normalised frame and radians
-happens here and nowhere else. Rendering runs under ``torch.inference_mode`` with the
+happens here and nowhere else. Rendering runs under ``torch.inference_mode`` through the
+fast path of :mod:`avgs.acoustics.fast` (same numbers as the model: precomputed parts of F
+and B, a partial selection for the vicinity, work buffers kept between calls), with the
 source context C_S cached until the source moves; all 257 frequency queries go through B
 in one batch, and the masks are time-invariant, so any input length costs one STFT, one
-multiply and one iSTFT.
+multiply and one iSTFT (:meth:`SceneRenderer.stream` does the same block by block).
 
 Thread safety: :meth:`render` and :meth:`masks` serialise on an internal lock, so one
 worker thread may render while another thread reads the point arrays (read-only numpy).

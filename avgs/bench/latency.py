@@ -121,6 +121,13 @@ def measure(renderer, repeats: int = 50, long_seconds=(10.0, 60.0), long_repeats
     out: dict = {"device": str(dev), "points": int(len(renderer.points)), "k": int(renderer.vicinity_size)}
     say(f"latency ({dev}): render")
     out["render"] = time_render(lambda l, y, m: renderer.render(l, y, m), poses, mono, repeats, device=dev).to_dict()
+    threads = torch.get_num_threads()
+    if dev.type == "cpu" and threads != 1:  # small ops: on a busy shared machine one thread can beat two
+        torch.set_num_threads(1)
+        try:
+            out["render_1_thread"] = time_render(lambda l, y, m: renderer.render(l, y, m), poses, mono, repeats).to_dict()
+        finally:
+            torch.set_num_threads(threads)
     masks_t = time_render(lambda l, y, m: renderer.masks(l, y), poses, mono, repeats, device=dev)
     out["masks"] = masks_t.to_dict()
     say(f"latency ({dev}): stages")

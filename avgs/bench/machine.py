@@ -36,6 +36,8 @@ def machine_info() -> dict:
         "platform": platform.platform(),
         "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
     }
+    if hasattr(os, "getloadavg"):  # other processes on a shared machine skew every timing
+        info["load_average_1m_at_start"] = round(os.getloadavg()[0], 2)
     try:
         import pyroomacoustics
 

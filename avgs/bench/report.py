@@ -196,6 +196,12 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
                                                                    ("vicinity", "field", "binauralizer", "stft", "istft")])
         L += _table(["device", "points", "k", "render ms (median)", "p95", "masks only", "vicinity", "field F", "binauralizer B",
                      "STFT", "iSTFT"], rows)
+        for dev, d in lat.items():
+            if "render_1_thread" in d:
+                t = d["render_1_thread"]
+                L += ["", f"The same renders with 1 torch thread ({dev}): median {t['median_ms']:.2f} ms, p95 {t['p95_ms']:.2f} ms "
+                      "(the per-pose work is many small operations; when other processes share the two cores, "
+                      "two threads wait on each other)."]
         L += ["", "Before and after the fast path, side by side in this run (same poses, same output to float rounding):", ""]
         rows = []
         for dev, d in lat.items():
@@ -234,6 +240,10 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
         for sc in se["scenes"]:
             if sc.get("sim_note"):
                 L += [f"- {sc['sim_note']}"]
+            t = sc.get("ground_truth_settings")
+            if t:
+                L += [f"- {sc['scene']}: ground truth simulated at image-source order {t.get('max_order')}"
+                      f"{' + ray tracing' if t.get('ray_tracing') else ''} (polygon rooms: order {t.get('max_order_polygon')})."]
         L += [""]
     else:
         L += [se.get("note", "(not run)"), ""]

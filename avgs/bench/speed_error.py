@@ -84,8 +84,13 @@ def train_model(scene_dir, out: Path, iterations: int, vicinity: float, n_points
             pass
     scene = RWAVSScene(scene_dir)
     cfg = bench_config(iterations, vicinity, n_points, device, seed)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # small ops: robust when other processes share the cores (not timed here)
     t0 = time.perf_counter()
-    final = train_scene(scene_dir, out, cfg, progress=False, initial_points=initial_points(scene, n_points, seed))
+    try:
+        final = train_scene(scene_dir, out, cfg, progress=False, initial_points=initial_points(scene, n_points, seed))
+    finally:
+        torch.set_num_threads(threads)
     seconds = time.perf_counter() - t0
     ck = load_checkpoint(out)
     ck["bench_key"] = key
@@ -143,6 +148,8 @@ def score(method, scene) -> dict:
 def simulator_available() -> str | None:
     """None when ``avgs.data.synth.simulate`` offers the contract we need, else why not."""
     try:
+        import pyroomacoustics  # noqa: F401
+
         from avgs.data.synth.simulate import SimSettings, binaural_rirs, load_spec  # noqa: F401
     except ImportError as exc:
         return f"avgs.data.synth.simulate not importable ({exc})"
@@ -166,6 +173,10 @@ def simulator_points(scene_dir, scene, orders=SIM_ORDERS, ray_tracing=(False, Tr
     mono_full = read_wav(Path(scene_dir) / SOURCE_FILE, 1, sr)[0].astype(np.float64)  # [L]
     clips = scene.val[:max_poses]
     rows = []
+    if clips:  # untimed warm-up: the KEMAR ear directivities are built once per process (~1 s)
+        c = clips[0]
+        sim.binaural_rirs(spec, scene.frame.to_world(c.listener), float(np.degrees(c.yaw)),
+                          dataclasses.replace(base, max_order=0, ray_tracing=False))
     for rt in ray_tracing:
         for order in orders:
             settings = dataclasses.replace(base, max_order=int(order), ray_tracing=bool(rt),
@@ -279,9 +290,14 @@ def bench_scene(scene_dir, work: Path, *, iterations: int, n_points: int, repeat
                      "latency_ms": t.median_ms, "p95_ms": t.p95_ms, **s})
 
     why_not = simulator_available()
-    sim_note = None
-    if why_not is None and (Path(scene_dir) / "scene.json").is_file():
+    sim_note, truth = None, None
+    if not orders:
+        sim_note = f"simulator skipped on {scene.name}: --skip simulator"
+    elif why_not is None and (Path(scene_dir) / "scene.json").is_file():
         try:
+            from avgs.data.synth.simulate import load_settings
+
+            truth = dataclasses.asdict(load_settings(scene_dir))
             rows += [{**base, **row} for row in simulator_points(scene_dir, scene, orders, max_poses=sim_poses, progress=lambda m: say(f"{scene.name}: {m}"))]
         except (FileNotFoundError, ValueError, KeyError) as exc:
             sim_note = f"simulator skipped on {scene.name}: {exc}"
@@ -290,7 +306,7 @@ def bench_scene(scene_dir, work: Path, *, iterations: int, n_points: int, repeat
     if sim_note:
         say(sim_note)
     return {"scene": scene.name, "rows": rows, "budgets": budget_rows, "prune": info, "training": training,
-            "sim_note": sim_note, "val_clips": len(scene.val), "train_clips": len(scene.train)}
+            "sim_note": sim_note, "ground_truth_settings": truth, "val_clips": len(scene.val), "train_clips": len(scene.train)}
 
 
 def summarise(scenes: list[dict]) -> list[dict]:

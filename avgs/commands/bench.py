@@ -10,6 +10,7 @@ or given with ``--data``. Trained bench models are cached in ``--work`` too.
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 DEMO_CKPT = "assets/demo/scene.ckpt"
@@ -213,6 +214,8 @@ def run(args: argparse.Namespace) -> int:
         "and the crossfade; the viewer renders on a worker thread that keeps only the newest request.",
         "The demo checkpoint: " + source + ".",
     ]
+    if hasattr(os, "getloadavg"):
+        results["machine"]["load_average_1m_at_end"] = round(os.getloadavg()[0], 2)
     report = write_report(results, out)
     print_tables(results)
     print(headline(results.get("speed_error", {}).get("summary", [])))

@@ -1,0 +1,62 @@
+"""``avgs bench`` on a tiny scene: the report's structure, never its timings."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from avgs.bench.report import SECTIONS, headline
+from avgs.bench.speed_error import simulator_available, summarise
+from avgs.cli import main as cli_main
+from rwavs_writer import write_scene
+
+
+def test_bench_quick_writes_the_report(tmp_path, capsys):
+    scene = write_scene(tmp_path / "data", n_train=12, n_val=3, seed=0)
+    out = tmp_path / "bench"
+    argv = ["bench", "--quick", "--data", str(scene.scene_dir), "--out", str(out), "--presets", "",
+            "--iterations", "8", "--points", "120", "--repeats", "3"]
+    assert cli_main(argv) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-1].startswith("inference median ") and lines[-1].endswith(" ms per pose (cpu, demo scene)")
+    float(lines[-1].split()[2])
+    report = (out / "REPORT.md").read_text()
+    headings = [line[3:] for line in report.splitlines() if line.startswith("## ")]
+    assert headings == list(SECTIONS)
+    assert "Command: `" in report and "| cpu |" in report
+    for label in ("mono-mono", "mono-energy", "stereo-energy", "AV-GS vicinity 5 %", "AV-GS vicinity 25 %",
+                  "pruned to walkable (exact)", "bfloat16", "previous (c4b219a)", "naive"):
+        assert label in report
+    for png in ("latency.png", "speed_error.png", "points.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    results = json.loads((out / "results.json").read_text())
+    assert set(results["latency"]["cpu"]["stages"]) == {"vicinity", "field", "binauralizer", "stft", "istft"}
+    assert set(results["latency"]["cpu"]["long"]) == {"10", "60"}
+    assert {t["stage"] for t in results["training"]} == {1, 2}
+    assert (out / "work" / ".gitignore").read_text() == "*\n"  # trained bench models stay out of git
+
+
+def test_headline_compares_avgs_with_the_simulator():
+    rows = [
+        {"label": "AV-GS vicinity 15 %", "family": "AV-GS vicinity", "latency_ms": 2.0, "MAG": 0.5, "ENV": 0.1},
+        {"label": "simulator order 2", "family": "simulator (image source)", "latency_ms": 80.0, "MAG": 0.4, "ENV": 0.1,
+         "order": 2, "ray_tracing": False},
+        {"label": "simulator order 10 + rays", "family": "simulator (rays)", "latency_ms": 1000.0, "MAG": 0.05, "ENV": 0.02,
+         "order": 10, "ray_tracing": True},
+    ]
+    text = headline(summarise([{"rows": [dict(r, scene="s") for r in rows]}]))
+    assert "500x" in text and "simulator order 2" in text and "40x" in text
+
+
+@pytest.mark.skipif(simulator_available() is not None, reason="scene generator not installed")
+def test_simulator_points_on_a_generated_scene(tmp_path):
+    from avgs.bench.speed_error import simulator_points
+    from avgs.data.rwavs import RWAVSScene
+
+    root = tmp_path / "synth"
+    assert cli_main(["synth", str(root), "--preset", "office", "--scene-id", "o", "--poses", "8", "--quick", "--no-progress"]) == 0
+    scene = RWAVSScene(root / "o")
+    rows = simulator_points(root / "o", scene, orders=(0, 1), ray_tracing=(False,), max_poses=1)
+    assert [r["label"] for r in rows] == ["simulator order 0", "simulator order 1"]
+    assert all(r["latency_ms"] > 0 and r["MAG"] >= 0 and r["ENV"] >= 0 for r in rows)
