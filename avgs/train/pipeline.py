@@ -43,14 +43,14 @@ def _audio_points_from_stage1(scene, cfg: TrainConfig, log, progress: bool):
     spec = cfg.acoustic.alpha_init
     parse_alpha_spec(spec)
     geometry = None
-    if scene.metadata is not None:
+    if scene.metadata is not None and scene.metadata.get("surfaces"):
         from avgs.data.synth.geometry import surface_points
 
         geometry = surface_points(scene.metadata, cfg.gaussians.init_points, rng)  # ([n,3] normalised, [n,3])
     elif cfg.init == "sfm":
         raise ValueError(
-            f"{scene.root}: --init sfm needs the scene's geometry points from scene.json, which this scene "
-            "does not have (real RWAVS scenes); use --init gs"
+            f"{scene.root}: --init sfm needs the scene's geometry points (scene.json 'surfaces'), which this "
+            "scene does not have (real RWAVS scenes); use --init gs"
         )
 
     gaussians = None
