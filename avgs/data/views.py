@@ -204,6 +204,9 @@ def load_views(scene_root: str | Path, split: str, downscale: int = 1) -> Views:
     """
     if split not in SPLITS:
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    if int(downscale) != downscale or downscale < 1:
+        raise ValueError(f"downscale must be an integer >= 1, got {downscale!r}")
+    downscale = int(downscale)
     root = Path(scene_root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: scene folder missing")

@@ -11,7 +11,8 @@ Tiles are processed in chunks of similar list length, padded to the chunk's long
 and capped at ``chunk_elements`` (tiles x list x pixels), so memory stays bounded for any
 scene. The per-chunk blend is a custom autograd function whose backward recomputes the
 alphas and applies the closed-form gradient of the blend (as gsplat's CUDA backward does),
-so nothing of size tiles x list x pixels is kept between forward and backward.
+so nothing of size tiles x list x pixels is kept between forward and backward; lists are
+walked in short segments so that tiles whose pixels have all saturated stop early.
 """
 
 from __future__ import annotations
@@ -29,8 +30,13 @@ ALPHA_MAX = 0.999
 "Largest alpha of one Gaussian at one pixel (keeps 1 - alpha > 0)."
 
 
-def _blend(sigma, op):
-    """Forward quantities per (tile, Gaussian, pixel) ``[Tc, K, P]`` from ``sigma`` and opacities ``[Tc, K]``.
+SEGMENT = 32
+"Gaussians per tile list blended at a time; tiles whose pixels are all saturated stop early."
+
+
+def _blend(sigma, op, t0):
+    """Forward quantities per (tile, Gaussian, pixel) ``[A, S, P]`` for one segment of the
+    lists, from ``sigma``, opacities ``op [A, S]`` and the transmittance ``t0 [A, P]`` before it.
 
     Returns ``e = exp(-sigma)``, ``a_raw = o e``, ``alpha`` (clamped, small ones zeroed),
     ``one_minus = 1 - alpha``, transmittance after each Gaussian ``t_after``, ``keep``
@@ -41,10 +47,15 @@ def _blend(sigma, op):
     a_raw = e * op[..., None]
     alpha = a_raw.clamp_max(ALPHA_MAX).mul_(a_raw >= ALPHA_MIN)
     one_minus = 1.0 - alpha
-    t_after = torch.cumprod(one_minus, dim=1)
+    t_after = torch.cumprod(one_minus, dim=1).mul_(t0[:, None, :])
     keep = t_after > T_MIN
     w = (t_after / one_minus).mul_(alpha).mul_(keep)
     return e, a_raw, alpha, one_minus, t_after, keep, w
+
+
+def _rows(t: torch.Tensor, alive: torch.Tensor | None, s: int, e: int) -> torch.Tensor:
+    """``t[alive, s:e]`` (all rows when ``alive`` is None)."""
+    return t[:, s:e] if alive is None else t[alive, s:e]
 
 
 class _BlendTiles(torch.autograd.Function):
@@ -53,13 +64,42 @@ class _BlendTiles(torch.autograd.Function):
     ``coef [Tc, K, 6]`` holds each Gaussian's ``sigma`` as a quadratic in the tile's pixel
     coordinates, ``basis [6, P]`` those monomials (so ``sigma = coef @ basis``, one matrix
     product); ``op [Tc, K]`` opacities, ``col [Tc, K, C]`` colours.
+
+    The lists are walked in segments of :data:`SEGMENT`, front to back; a tile leaves once
+    every pixel of it has stopped (transmittance <= ``T_MIN``), so opaque surfaces cost
+    only the Gaussians in front of them. Backward walks the same segments back to front,
+    carrying the sum over the Gaussians behind.
     """
 
     @staticmethod
     def forward(ctx, coef, basis, op, col):
-        _, _, _, _, _, _, w = _blend(coef @ basis, op)
-        rgb = torch.bmm(w.transpose(1, 2), col)  # [Tc, P, C]
-        acc = w.sum(1)  # [Tc, P]
+        Tc, K = op.shape
+        T = torch.ones(Tc, basis.shape[1], dtype=op.dtype, device=op.device)  # [Tc, P]
+        rgb = torch.zeros(Tc, basis.shape[1], col.shape[-1], dtype=col.dtype, device=col.device)
+        acc = torch.zeros_like(T)
+        segments = []
+        alive = None  # None: every tile of the chunk
+        for s in range(0, K, SEGMENT):
+            e = min(K, s + SEGMENT)
+            t0 = T if alive is None else T[alive]
+            _, _, _, _, t_after, _, w = _blend(_rows(coef, alive, s, e) @ basis, _rows(op, alive, s, e), t0)
+            seg_rgb = torch.bmm(w.transpose(1, 2), _rows(col, alive, s, e))  # [A, P, C]
+            if alive is None:
+                rgb += seg_rgb
+                acc += w.sum(1)
+                T = t_after[:, -1].clone()
+            else:
+                rgb.index_add_(0, alive, seg_rgb)
+                acc.index_add_(0, alive, w.sum(1))
+                T[alive] = t_after[:, -1]
+            segments.append((s, e, alive, t0))
+            still = (t_after[:, -1] > T_MIN).any(-1)  # [A]
+            if not bool(still.all()):
+                idx = torch.nonzero(still).squeeze(-1)
+                alive = idx if alive is None else alive[idx]
+                if len(alive) == 0:
+                    break
+        ctx.segments = segments
         ctx.save_for_backward(coef, basis, op, col)
         return rgb, acc
 
@@ -67,17 +107,30 @@ class _BlendTiles(torch.autograd.Function):
     @once_differentiable
     def backward(ctx, g_rgb, g_acc):
         coef, basis, op, col = ctx.saved_tensors
-        e, a_raw, alpha, one_minus, t_after, keep, w = _blend(coef @ basis, op)
-        g_col = torch.bmm(w, g_rgb)  # [Tc, K, C]
-        v = torch.bmm(col, g_rgb.transpose(1, 2)).add_(g_acc[:, None, :])  # dL/dw [Tc, K, P]
-        vw = v * w
-        suffix = vw.sum(1, keepdim=True) - torch.cumsum(vw, dim=1)  # over the Gaussians behind
-        # dL/dalpha_i = T_i v_i - (sum_{k > i} w_k v_k) / (1 - alpha_i), for blended i
-        g = v.mul_(t_after).sub_(suffix).div_(one_minus).mul_(keep)
-        g.mul_((alpha > 0) & (a_raw < ALPHA_MAX))  # dL/da_raw
-        g_op = (g * e).sum(-1)  # [Tc, K]
-        g_sigma = g.mul_(a_raw).neg_()  # [Tc, K, P]
-        g_coef = g_sigma @ basis.T  # [Tc, K, 6]
+        g_coef, g_op, g_col = torch.zeros_like(coef), torch.zeros_like(op), torch.zeros_like(col)
+        behind = torch.zeros_like(g_acc)  # [Tc, P] sum of w v over later segments
+        for s, e, alive, t0 in reversed(ctx.segments):
+            c = _rows(col, alive, s, e)
+            ex, a_raw, alpha, one_minus, t_after, keep, w = _blend(_rows(coef, alive, s, e) @ basis, _rows(op, alive, s, e), t0)
+            G = g_rgb if alive is None else g_rgb[alive]  # [A, P, C]
+            ga = g_acc if alive is None else g_acc[alive]
+            v = torch.bmm(c, G.transpose(1, 2)).add_(ga[:, None, :])  # dL/dw [A, S, P]
+            vw = v * w
+            seg_total = vw.sum(1)  # [A, P]
+            later = behind if alive is None else behind[alive]
+            suffix = (seg_total + later)[:, None, :] - torch.cumsum(vw, dim=1)  # over the Gaussians behind
+            # dL/dalpha_i = T_i v_i - (sum_{k > i} w_k v_k) / (1 - alpha_i), for blended i
+            g = v.mul_(t_after).sub_(suffix).div_(one_minus).mul_(keep)
+            g.mul_((alpha > 0) & (a_raw < ALPHA_MAX))  # dL/da_raw
+            g_o = (g * ex).sum(-1)  # [A, S]
+            g_c = g.mul_(a_raw).neg_() @ basis.T  # dL/dsigma [A, S, P] -> [A, S, 6]
+            g_w = torch.bmm(w, G)  # [A, S, C]
+            if alive is None:
+                g_op[:, s:e], g_coef[:, s:e], g_col[:, s:e] = g_o, g_c, g_w
+                behind += seg_total
+            else:
+                g_op[alive, s:e], g_coef[alive, s:e], g_col[alive, s:e] = g_o, g_c, g_w
+                behind.index_add_(0, alive, seg_total)
         return g_coef, None, g_op, g_col
 
 
