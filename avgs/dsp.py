@@ -16,7 +16,9 @@ from avgs.config import STFT, STFTConfig
 
 @functools.lru_cache(maxsize=8)
 def _window(win_length: int, device: str, dtype: torch.dtype) -> torch.Tensor:
-    return torch.hann_window(win_length, device=device, dtype=dtype)
+    # Made outside inference mode: a cached inference tensor could not be used under autograd later.
+    with torch.inference_mode(False):
+        return torch.hann_window(win_length, device=device, dtype=dtype)
 
 
 def _as_tensor(x) -> torch.Tensor:

@@ -47,3 +47,12 @@ def test_pure_tone_peaks_at_its_bin():
 def test_numpy_input_and_frame_count():
     x = np.zeros(1000, dtype=np.float32)
     assert dsp.stft(x).shape[-1] == dsp.n_frames(1000) == 1 + 1000 // STFT.hop_length
+
+
+def test_window_cached_under_inference_mode_still_works_with_autograd():
+    dsp._window.cache_clear()
+    with torch.inference_mode():
+        dsp.stft(torch.randn(1000))  # first use caches the window
+    x = torch.randn(1000, requires_grad=True)
+    dsp.stft(x).abs().sum().backward()
+    assert torch.isfinite(x.grad).all()
