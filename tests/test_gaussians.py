@@ -115,8 +115,8 @@ def test_camera_convention_opengl_pose_to_image_axes():
 
 def test_gradients_match_finite_differences_in_float64():
     torch.manual_seed(0)
-    W, H = 14, 11
-    K = intrinsics(12.0, 12.0, 7.0, 5.5, dtype=torch.float64)
+    W, H = 10, 8
+    K = intrinsics(9.0, 9.0, 5.0, 4.0, dtype=torch.float64)
     means, quats, scales, opac, colors = random_cloud(4, seed=3, dtype=torch.float64, z=2.0)
     vm = EYE.double()
 
@@ -167,7 +167,8 @@ def test_tiles_chunks_segments_and_image_edges_do_not_change_the_image(monkeypat
     ref, ref_a, _ = rasterize(means, quats, scales, opac, colors, EYE, K, 75, 57, backend="torch", tile_size=16)
     assert ref.shape == (57, 75, 3) and float(ref_a.max()) > 0.99  # dense: many pixels saturate early
     p = project_gaussians(means, quats, scales, EYE, K, 75, 57)
-    monkeypatch.setattr(comp, "SEGMENT", 3)
+    monkeypatch.setattr(comp, "SEGMENT", 8)
+    monkeypatch.setattr(comp, "SEGMENT_ELEMENTS", 0)
     small, small_a = comp.composite(p["means2d"], p["conics"], opac, colors, p["depths"], p["radii"], 75, 57, tile_size=16, chunk_elements=4096)
     assert torch.allclose(ref, small, atol=1e-6) and torch.allclose(ref_a, small_a, atol=1e-6)
     tiles8, _, _ = rasterize(means, quats, scales, opac, colors, EYE, K, 75, 57, backend="torch", tile_size=8)
@@ -175,21 +176,22 @@ def test_tiles_chunks_segments_and_image_edges_do_not_change_the_image(monkeypat
 
 
 def test_gradients_across_segments_and_early_stops(monkeypatch):
-    """Gaussians walked two at a time: eight nearly opaque ones saturate the left tile, which
+    """Gaussians walked two at a time: twelve nearly opaque ones saturate the left tile, which
     stops early, while the right tile goes on; the backward pass carries the sum over later
     segments and skips the stopped tile."""
     from avgs.gaussians import composite as comp
 
     monkeypatch.setattr(comp, "SEGMENT", 2)
+    monkeypatch.setattr(comp, "SEGMENT_ELEMENTS", 0)
     K = intrinsics(10.0, 10.0, 4.0, 2.0, dtype=torch.float64)
     g = torch.Generator().manual_seed(11)
-    left = torch.tensor([-0.4, 0.0, 2.0], dtype=torch.float64) + 0.05 * torch.randn(8, 3, generator=g, dtype=torch.float64)
+    left = torch.tensor([-0.4, 0.0, 2.0], dtype=torch.float64) + 0.05 * torch.randn(12, 3, generator=g, dtype=torch.float64)
     right = torch.tensor([0.4, 0.0, 2.5], dtype=torch.float64) + 0.05 * torch.randn(3, 3, generator=g, dtype=torch.float64)
     means = torch.cat([left, right])
     n = len(means)
     quats = torch.randn(n, 4, generator=g, dtype=torch.float64)
-    scales = torch.cat([torch.full((8, 3), 0.3), torch.full((3, 3), 0.4)]).double()
-    opac = torch.cat([torch.linspace(0.9, 0.97, 8), torch.full((3,), 0.5)]).double()
+    scales = torch.cat([torch.full((12, 3), 0.5), torch.full((3, 3), 0.4)]).double()
+    opac = torch.cat([torch.linspace(0.9, 0.97, 12), torch.full((3,), 0.5)]).double()
     colors = torch.rand(n, 3, generator=g, dtype=torch.float64)
     stops = []
     forward = comp._BlendTiles.forward
@@ -205,63 +207,9 @@ def test_gradients_across_segments_and_early_stops(monkeypatch):
 
     monkeypatch.setattr(comp._BlendTiles, "forward", staticmethod(spy))
     _, alpha = fn(means, opac, colors)
-    assert 1 in stops[0] and float(alpha[:, :4].min()) > 1 - 1e-4  # the left tile stopped, the right went on
+    assert stops[0][0] is None and 1 in stops[0]  # both tiles started, the left one stopped, the right went on
+    assert float(alpha[:, :4].min()) > 0.999 and float(alpha[:, 7].max()) < 0.9
     monkeypatch.setattr(comp._BlendTiles, "forward", staticmethod(forward))
-    inputs = tuple(t.clone().requires_grad_(True) for t in (means, opac, colors))
-    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
-
-
-def test_degenerate_inputs_give_finite_images_and_gradients():
-    K = intrinsics(30.0, 30.0, 16.0, 12.0)
-    means = torch.tensor([[0.0, 0.0, 2.0], [0.1, 0.0, 2.0], [0.0, 0.0, -2.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1e-9]])
-    quats = torch.tensor([[0.0, 0, 0, 0], [3.0, 1.0, 0, 0], [1.0, 0, 0, 0], [1.0, 0, 0, 0], [0.0, 0, 0, 0]])
-    scales = torch.tensor([[0.0, 0.0, 0.0], [0.1, 0.0, 0.2], [0.1] * 3, [0.1] * 3, [0.0] * 3])
-    params = [t.clone().requires_grad_(True) for t in (means, quats, scales, torch.full((5,), 0.9), torch.rand(5, 3))]
-    rgb, alpha, aux = rasterize(*params, EYE, K, 32, 24, backend="torch")
-    assert torch.isfinite(rgb).all() and torch.isfinite(alpha).all()
-    assert aux["radii"].tolist()[2:] == [0, 0, 0]  # behind, at and just in front of the camera centre
-    assert aux["radii"][0] > 0  # zero scale and zero quaternion still render (as a 0.3 px^2 dot)
-    (rgb.sum() + alpha.sum()).backward()
-    assert all(torch.isfinite(p.grad).all() for p in params)
-    # empty set: background only
-    e = torch.zeros(0, 3)
-    rgb0, alpha0, _ = rasterize(e, torch.zeros(0, 4), e, torch.zeros(0), e, EYE, K, 32, 24, backend="torch", background=torch.tensor([0.2, 0.3, 0.4]))
-    assert rgb0.shape == (24, 32, 3) and torch.allclose(rgb0, torch.tensor([0.2, 0.3, 0.4]).expand(24, 32, 3))
-    assert alpha0.abs().max() == 0
-    with pytest.raises(ValueError, match="quats must be"):
-        rasterize(means, quats[:2], scales, torch.ones(5), torch.ones(5, 3), EYE, K, 32, 24)
-
-
-def test_tiles_chunks_segments_and_image_edges_do_not_change_the_image(monkeypatch):
-    from avgs.gaussians import composite as comp
-    from avgs.gaussians.projection import project_gaussians
-
-    means, quats, scales, opac, colors = random_cloud(200, seed=5)
-    K = intrinsics(50.0, 50.0, 37.0, 29.0)
-    ref, ref_a, _ = rasterize(means, quats, scales, opac, colors, EYE, K, 75, 57, backend="torch", tile_size=16)
-    assert ref.shape == (57, 75, 3) and float(ref_a.max()) > 0.99  # dense: many pixels saturate early
-    p = project_gaussians(means, quats, scales, EYE, K, 75, 57)
-    monkeypatch.setattr(comp, "SEGMENT", 3)
-    small, small_a = comp.composite(p["means2d"], p["conics"], opac, colors, p["depths"], p["radii"], 75, 57, tile_size=16, chunk_elements=4096)
-    assert torch.allclose(ref, small, atol=1e-6) and torch.allclose(ref_a, small_a, atol=1e-6)
-    tiles8, _, _ = rasterize(means, quats, scales, opac, colors, EYE, K, 75, 57, backend="torch", tile_size=8)
-    assert (tiles8 - ref).abs().mean() < 1e-3  # only the cut tails beyond 3 sigma differ
-
-
-def test_gradients_across_segments_and_early_stops(monkeypatch):
-    """Many overlapping, nearly opaque Gaussians walked two at a time: the backward pass
-    carries the sum over later segments and skips tiles that stopped."""
-    from avgs.gaussians import composite as comp
-
-    monkeypatch.setattr(comp, "SEGMENT", 2)
-    K = intrinsics(10.0, 10.0, 4.0, 4.0, dtype=torch.float64)
-    means, quats, scales, _, colors = random_cloud(9, seed=11, dtype=torch.float64, z=2.0)
-    opac = torch.linspace(0.5, 0.97, 9, dtype=torch.float64)
-
-    def fn(m, o, c):
-        rgb, alpha, _ = rasterize(m, quats, scales * 3, o, c, EYE.double(), K, 8, 8, backend="torch", tile_size=4)
-        return rgb, alpha
-
     inputs = tuple(t.clone().requires_grad_(True) for t in (means, opac, colors))
     assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
 

@@ -31,7 +31,9 @@ ALPHA_MAX = 0.999
 
 
 SEGMENT = 32
-"Gaussians per tile list blended at a time; tiles whose pixels are all saturated stop early."
+"Fewest Gaussians per tile list blended at a time; tiles whose pixels all saturated stop early."
+SEGMENT_ELEMENTS = 1 << 18
+"Segments grow to about this many (tile, Gaussian, pixel) elements, so few tiles with long lists take few steps."
 
 
 def _blend(sigma, op, t0):
@@ -79,8 +81,9 @@ class _BlendTiles(torch.autograd.Function):
         acc = torch.zeros_like(T)
         segments = []
         alive = None  # None: every tile of the chunk
-        for s in range(0, K, SEGMENT):
-            e = min(K, s + SEGMENT)
+        step = max(SEGMENT, SEGMENT_ELEMENTS // (Tc * basis.shape[1]))
+        for s in range(0, K, step):
+            e = min(K, s + step)
             t0 = T if alive is None else T[alive]
             _, _, _, _, t_after, _, w = _blend(_rows(coef, alive, s, e) @ basis, _rows(op, alive, s, e), t0)
             seg_rgb = torch.bmm(w.transpose(1, 2), _rows(col, alive, s, e))  # [A, P, C]
