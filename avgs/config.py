@@ -136,7 +136,9 @@ class PointManagementConfig:
     enabled: bool = True
     "Turn audio-aware densification and pruning on (--no-point-management turns it off)."
     grad_threshold: float = 4e-4
-    "tau_g: averaged gradient magnitude above which a vicinity point spawns new points."
+    "tau_g (paper: 0.0004): averaged k * ||dL/dX|| above which a vicinity point spawns a new point."
+    densify_max_fraction: float = 0.02
+    "At most this fraction of the points spawn per densification step (the largest gradients)."
     densify_every: int = 500
     "Densification interval in iterations."
     densify_until_fraction: float = 0.5

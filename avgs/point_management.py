@@ -8,15 +8,20 @@ The caller owns the training loop and calls, per iteration::
     removed = manager.maybe_prune(step, points, optimizer)
 
 Densification: every ``densify_every`` iterations, each point that was in a vicinity
-since the last densification gets its gradient magnitude ``||dL/dX||`` averaged over the
-iterations it was seen; those above tau_g spawn one new point drawn from a Gaussian around
-their position, with random alpha (drawn from N(0, std of alpha per dimension)).
+since the last densification gets its gradient magnitude ``k ||dL/dX||`` (k the vicinity
+size, see :meth:`AudioPointManager.step_post_backward`) averaged over the iterations it
+was seen; those above tau_g spawn one new point drawn from a Gaussian around their
+position, with random alpha (drawn from N(0, std of alpha per dimension)). At most
+``densify_max_fraction`` of the points spawn per step (the strongest), so G_a grows
+where the error is, not everywhere at once.
 Pruning: every ``prune_every`` iterations, Open3D radius outlier removal (fewer than
 ``prune_min_neighbors`` neighbours within ``prune_radius``, normalised units).
 Adding or removing points also grows or slices the optimizer's per-parameter state.
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 from torch import nn
@@ -87,15 +92,21 @@ class AudioPointManager:
         self.grad_sum = torch.zeros(n, device=device)
         self.count = torch.zeros(n, device=device)
 
-    def step_post_backward(self, points: AudioPoints, vicinity: torch.Tensor) -> None:
-        """Accumulate ``||dL/dX||`` of the points in ``vicinity`` (any-shaped int64 indices)."""
+    def step_post_backward(self, points: AudioPoints, vicinity: torch.Tensor, vicinity_size: int = 1) -> None:
+        """Accumulate ``vicinity_size * ||dL/dX||`` of the points in ``vicinity`` (any-shaped int64 indices).
+
+        F averages its features over the k points of a vicinity, so each point's raw
+        gradient shrinks as 1/k: with the paper's k = 15 % of N it depends on how many
+        points the scene has. Scaled by k it is the gradient of the point's own feature
+        before averaging, which tau_g can be compared with whatever N and k are.
+        """
         if not self.cfg.enabled or points.X.grad is None:
             return
         n = points.num_points
         if self.grad_sum is None or len(self.grad_sum) != n:
             self._reset(n, points.X.device)
         idx = torch.unique(vicinity.reshape(-1))
-        self.grad_sum[idx] += points.X.grad[idx].norm(dim=-1)
+        self.grad_sum[idx] += float(vicinity_size) * points.X.grad[idx].norm(dim=-1)
         self.count[idx] += 1
 
     def maybe_densify(self, step: int, points: AudioPoints, optimizer: torch.optim.Optimizer | None) -> int:
@@ -107,7 +118,7 @@ class AudioPointManager:
             return 0
         mean_grad = self.grad_sum / self.count.clamp_min(1)  # [N]
         significant = torch.nonzero((self.count > 0) & (mean_grad > cfg.grad_threshold)).reshape(-1)
-        room = cfg.max_points - points.num_points
+        room = min(cfg.max_points - points.num_points, math.ceil(cfg.densify_max_fraction * points.num_points))
         self._reset(points.num_points, points.X.device)
         if len(significant) == 0 or room <= 0:
             return 0

@@ -15,6 +15,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="Tiny preset for tests: few iterations, small images.")
     parser.add_argument("--resume", action="store_true", help="Continue from the training state saved in --out.")
     parser.add_argument("--stage1-iterations", type=int, metavar="N", help=field_help(GaussianConfig, "iterations"))
+    parser.add_argument("--image-downscale", type=int, metavar="F", help=field_help(GaussianConfig, "image_downscale"))
+    parser.add_argument("--max-gaussians", type=int, metavar="N", help=field_help(GaussianConfig, "max_gaussians"))
+    parser.add_argument("--stage1-only", action="store_true",
+                        help="Run stage 1 alone (frames and poses, no audio read) and write OUT.stage1.pt, which a "
+                             "later run with the same --out and settings reuses.")
+    parser.add_argument("--stage1", metavar="FILE",
+                        help="Take G from this stage-1 file (from --stage1-only) instead of training it; "
+                             "lets several stage-2 runs share one G.")
     parser.add_argument("--iterations", type=int, metavar="N", help=field_help(AcousticConfig, "iterations"))
     parser.add_argument("--vicinity-percentile", type=float, metavar="P", help=field_help(AcousticConfig, "vicinity_percentile"))
     parser.add_argument("--alpha-init", metavar="SPEC", help=field_help(AcousticConfig, "alpha_init") + " (sh+r, sh, r, s, o, ...)")
@@ -37,6 +45,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     cfg = quick_config() if args.quick else TrainConfig()
     for flag, (obj, name) in {
         "stage1_iterations": (cfg.gaussians, "iterations"),
+        "image_downscale": (cfg.gaussians, "image_downscale"),
+        "max_gaussians": (cfg.gaussians, "max_gaussians"),
         "iterations": (cfg.acoustic, "iterations"),
         "vicinity_percentile": (cfg.acoustic, "vicinity_percentile"),
         "alpha_init": (cfg.acoustic, "alpha_init"),
@@ -51,6 +61,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
             setattr(obj, name, value)
     if cfg.acoustic.iterations < 1 or cfg.gaussians.iterations < 0:
         raise ValueError("--iterations must be >= 1 and --stage1-iterations >= 0")
+    if cfg.gaussians.image_downscale < 1 or cfg.gaussians.max_gaussians < 1:
+        raise ValueError("--image-downscale and --max-gaussians must be >= 1")
     if not 0 < cfg.acoustic.vicinity_percentile <= 100:
         raise ValueError(f"--vicinity-percentile must be in (0, 100], got {cfg.acoustic.vicinity_percentile}")
     parse_alpha_spec(cfg.acoustic.alpha_init)
@@ -67,10 +79,16 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 def run(args: argparse.Namespace) -> int:
     from avgs.train.logging import log_paths
-    from avgs.train.pipeline import train_scene
+    from avgs.train.pipeline import run_stage1_only, train_scene
 
     cfg = config_from_args(args)
-    final = train_scene(args.scene, args.out, cfg, resume=args.resume, progress=not args.no_progress)
+    if args.stage1_only:
+        if args.stage1 or args.resume:
+            raise ValueError("--stage1-only trains G; it takes neither --stage1 nor --resume")
+        path = run_stage1_only(args.scene, args.out, cfg, progress=not args.no_progress)
+        print(f"wrote {path} (stage 1: G for --out {args.out})")
+        return 0
+    final = train_scene(args.scene, args.out, cfg, resume=args.resume, progress=not args.no_progress, stage1=args.stage1)
     log, png = log_paths(args.out)
     metrics = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in final.items())
     print(f"wrote {args.out} ({metrics}); log {log}, curves {png}")

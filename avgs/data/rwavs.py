@@ -168,6 +168,17 @@ def slice_padded(audio: np.ndarray, start: int, stop: int) -> np.ndarray:
     return out
 
 
+def read_scene_metadata(scene_dir: str | Path) -> dict | None:
+    """``scene.json`` of a scene folder as a dict (our generator's), or None (real RWAVS scenes)."""
+    path = Path(scene_dir) / METADATA_FILE
+    if not path.is_file():
+        return None
+    meta = _read_json(path, "the scene description written by avgs synth")
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: expected a JSON object")
+    return meta
+
+
 class RWAVSScene:
     """One scene folder in the RWAVS layout; everything positional is in the normalised frame.
 
@@ -213,13 +224,7 @@ class RWAVSScene:
     # -- reading -----------------------------------------------------------------------
 
     def _read_metadata(self) -> dict | None:
-        path = self.root / METADATA_FILE
-        if not path.is_file():
-            return None
-        meta = _read_json(path, "the scene description written by avgs synth")
-        if not isinstance(meta, dict):
-            raise ValueError(f"{path}: expected a JSON object")
-        return meta
+        return read_scene_metadata(self.root)
 
     def _read_poses(self) -> dict[tuple[str, bool], list[_PoseEntry]]:
         poses = {}

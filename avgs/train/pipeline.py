@@ -17,10 +17,20 @@ import numpy as np
 import torch
 
 from avgs.acoustics.model import AVGSModel
-from avgs.acoustics.points import AudioPoints, alpha_from_colors, alpha_from_gaussians, parse_alpha_spec
+from avgs.acoustics.points import AudioPoints
 from avgs.checkpoint import build_checkpoint, config_of, load_checkpoint, outline_from_metadata, save_checkpoint
 from avgs.config import TrainConfig
 from avgs.train.logging import JsonLinesLog, log_paths, plot_curves
+from avgs.train.stage1 import (
+    audio_points_from,
+    geometry_points,
+    load_stage1,
+    needs_gaussians,
+    reusable,
+    save_stage1,
+    stage1_path,
+    train_stage1,
+)
 from avgs.train.stage2 import Stage2Trainer
 
 
@@ -37,57 +47,54 @@ def quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
     return cfg
 
 
-def _audio_points_from_stage1(scene, cfg: TrainConfig, log, progress: bool):
-    """(AudioPoints, gaussians dict or None): stage 1 as ``cfg.init`` and ``cfg.store_gaussians`` ask."""
-    rng = np.random.default_rng(cfg.seed)
-    spec = cfg.acoustic.alpha_init
-    parse_alpha_spec(spec)
-    geometry = None
-    if scene.metadata is not None and scene.metadata.get("surfaces"):
-        from avgs.data.synth.geometry import surface_points
+def _stage1(scene, cfg: TrainConfig, log: JsonLinesLog, progress: bool, cache: Path, given: Path | None):
+    """(AudioPoints, gaussians dict or None): stage 1 as ``cfg.init`` and ``cfg.store_gaussians`` ask.
 
-        geometry = surface_points(scene.metadata, cfg.gaussians.init_points, rng)  # ([n,3] normalised, [n,3])
-    elif cfg.init == "sfm":
-        raise ValueError(
-            f"{scene.root}: --init sfm needs the scene's geometry points (scene.json 'surfaces'), which this "
-            "scene does not have (real RWAVS scenes); use --init gs"
-        )
-
+    G comes from ``given`` (a stage-1 file), else from ``cache`` when it was made for this
+    scene and these settings, else it is trained and written to ``cache``.
+    """
+    geometry = geometry_points(scene.root, scene.metadata, cfg)
     gaussians = None
-    if cfg.init == "gs" or cfg.store_gaussians:
-        from avgs.data.views import load_views
-        from avgs.gaussians.trainer import random_init_points, train_gaussians
-
-        views = load_views(scene.root, "train")
-        if geometry is not None:
-            init_points, init_colors = geometry
+    if needs_gaussians(cfg):
+        if given is not None or (cache.is_file() and reusable(load_stage1(cache), scene.name, cfg)):
+            source = given if given is not None else cache
+            data = load_stage1(source)
+            if given is not None and data.get("scene") != scene.name:
+                raise ValueError(f"{given}: stage 1 of scene {data.get('scene')!r}, not of {scene.name!r}")
+            for record in data.get("history", []):
+                log.write(record)
+            log.write({"stage": "stage1", "event": "reused", "file": str(source)})
+            gaussians = data["gaussians"]
         else:
-            init_points, init_colors = random_init_points(views, cfg.gaussians.init_points, rng), None
+            history: list[dict] = []
 
-        def log_fn(record: dict) -> None:
-            log.write({"stage": "stage1", **record})
+            def log_fn(record: dict) -> None:
+                history.append({"stage": "stage1", **record})
+                log.write(history[-1])
 
-        gaussians, _ = train_gaussians(
-            views,
-            cfg.gaussians,
-            init_points,
-            init_colors,
-            device=cfg.device,
-            seed=cfg.seed,
-            progress=progress,
-            log_fn=log_fn,
-        )
-    if cfg.init == "gs":
-        X = gaussians.means.detach().float().cpu()  # [N, 3]
-        alpha = alpha_from_gaussians(gaussians, spec).cpu()  # [N, D]
-    else:
-        X = torch.as_tensor(np.asarray(geometry[0]), dtype=torch.float32)
-        alpha = alpha_from_colors(torch.as_tensor(np.asarray(geometry[1])), spec)
-    if len(X) > cfg.points.max_points:  # keep G_a within the cap from the start
-        keep = torch.randperm(len(X), generator=torch.Generator().manual_seed(cfg.seed))[: cfg.points.max_points]
-        X, alpha = X[keep], alpha[keep]
-    stored = gaussians.to_dict() if (gaussians is not None and cfg.store_gaussians) else None
-    return AudioPoints(X, alpha), stored
+            gaussians, stats = train_stage1(scene.root, cfg, progress=progress, log_fn=log_fn)
+            log.write({"stage": "stage1", "event": "trained", **{k: v for k, v in stats.items() if k != "backend"},
+                       "backend": str(stats.get("backend"))})
+            save_stage1(cache, scene.name, cfg, gaussians, stats, history)
+    points = audio_points_from(gaussians if cfg.init == "gs" else None, geometry, cfg)
+    return points, (gaussians if cfg.store_gaussians else None)
+
+
+def run_stage1_only(scene_dir: str | Path, out: str | Path, cfg: TrainConfig | None = None, *, progress: bool = True) -> Path:
+    """Stage 1 alone (frames and poses only, no audio read): writes ``<out>.stage1.pt``, which a
+    later ``train_scene(scene_dir, out, ...)`` with the same settings picks up."""
+    from avgs.data.rwavs import read_scene_metadata
+
+    cfg = copy.deepcopy(cfg or TrainConfig())
+    scene_dir = Path(scene_dir).resolve()
+    if not scene_dir.is_dir():
+        raise FileNotFoundError(f"{scene_dir}: scene folder missing")
+    geometry_points(scene_dir, read_scene_metadata(scene_dir), cfg)  # fail early on --init sfm without geometry
+    history: list[dict] = []
+    gaussians, stats = train_stage1(scene_dir, cfg, progress=progress, log_fn=lambda r: history.append({"stage": "stage1", **r}))
+    history.append({"stage": "stage1", "event": "trained", **{k: v for k, v in stats.items() if k != "backend"},
+                    "backend": str(stats.get("backend"))})
+    return save_stage1(stage1_path(out), scene_dir.name, cfg, gaussians, stats, history)
 
 
 def _bounds_world(scene, X: torch.Tensor, gaussians: dict | None) -> np.ndarray:
@@ -108,11 +115,14 @@ def train_scene(
     resume: bool = False,
     progress: bool = True,
     initial_points: AudioPoints | None = None,
+    stage1: str | Path | None = None,
 ) -> dict:
     """Train AV-GS on one scene and write ``out``; returns the final log record (with val MAG/ENV).
 
     ``initial_points`` (normalised frame) skips stage 1: G_a starts from them and no G is
     stored (for experiments on given geometry, and for tests that exercise stage 2 alone).
+    ``stage1`` names a stage-1 file (:mod:`avgs.train.stage1`) to take G from; without it,
+    ``<out>.stage1.pt`` is reused when it matches the scene and settings, else written.
 
     With ``resume`` and an existing ``out``, the model, optimizer and random state come from
     it and training continues from its iteration up to ``cfg.acoustic.iterations``.
@@ -149,7 +159,7 @@ def train_scene(
         if initial_points is not None:
             points, gaussians = initial_points, None
         else:
-            points, gaussians = _audio_points_from_stage1(scene, cfg, log, progress)
+            points, gaussians = _stage1(scene, cfg, log, progress, stage1_path(out), Path(stage1) if stage1 else None)
         log.write({"stage": "stage1", "event": "done", "seconds": time.perf_counter() - t0, "points": points.num_points})
 
     torch.manual_seed(cfg.seed)

@@ -83,7 +83,7 @@ class Stage2Trainer:
         loss.backward()
         if not torch.isfinite(loss):
             raise FloatingPointError(f"stage 2: non-finite loss at iteration {self.iteration}")
-        self.manager.step_post_backward(self.model.points, vicinity)
+        self.manager.step_post_backward(self.model.points, vicinity, self.model.vicinity_k)
         self.optimizer.step()
         self.iteration += 1
         added = self.manager.maybe_densify(self.iteration, self.model.points, self.optimizer)
