@@ -136,7 +136,10 @@ def rasterize(
     return _rasterize_torch(*args, **kw)
 
 
-def _rasterize_torch(means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, background, *, near_plane, far_plane, eps2d, tile_size):
+def _rasterize_torch(
+    means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, background,
+    *, near_plane, far_plane, eps2d, tile_size,
+):  # fmt: skip
     proj = project_gaussians(means, quats, scales, viewmat, K, width, height, near_plane, far_plane, eps2d)
     radii = proj["radii"]
     if colors.dim() == 3:  # SH: evaluate for the visible Gaussians only
@@ -160,7 +163,10 @@ def _rasterize_torch(means, quats, scales, opacities, colors, viewmat, K, width,
     return image, alpha, aux
 
 
-def _rasterize_gsplat(means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, background, *, near_plane, far_plane, eps2d, tile_size):
+def _rasterize_gsplat(
+    means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, background,
+    *, near_plane, far_plane, eps2d, tile_size,
+):  # fmt: skip
     if means.device.type != "cuda":
         raise ValueError(f"rasterize: backend 'gsplat' needs CUDA tensors, got device {means.device}")
     try:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from typing import Callable
 
 import numpy as np
@@ -103,7 +104,10 @@ def _val_views(views: Views, val_views: Views | None) -> Views | None:
         return None
     try:
         return load_views(views.root, "val")
-    except (FileNotFoundError, ValueError):
+    except FileNotFoundError:
+        return None  # a scene without a val split
+    except ValueError as exc:
+        warnings.warn(f"stage 1: no held-out PSNR, the val views do not load: {exc}", UserWarning, stacklevel=3)
         return None
 
 
@@ -224,5 +228,6 @@ def train_gaussians(
     model.requires_grad_(True)
     stats["seconds"] = time.perf_counter() - t_start
     if log_fn is not None:
-        log_fn({"iteration": total, "event": "eval", **{k: stats[k] for k in ("train_psnr", "val_psnr", "num_gaussians", "ms_per_iteration", "seconds")}})
+        keys = ("train_psnr", "val_psnr", "num_gaussians", "ms_per_iteration", "seconds")
+        log_fn({"iteration": total, "event": "eval", **{k: stats[k] for k in keys}})
     return model, stats
