@@ -25,6 +25,16 @@ from avgs.gaussians.trainer import evaluate_psnr, make_optimizer, random_init_po
 EYE = torch.eye(4)
 
 
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """These images are tiny: one thread is as fast, and on a shared 2-core machine two
+    threads waiting on each other made the training tests 30x slower."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
 def look_at(pos, target=(0.0, 0.0, 0.0)) -> np.ndarray:
     """OpenGL camera-to-world [4, 4] at ``pos`` looking at ``target``, z up."""
     pos = np.asarray(pos, float)
