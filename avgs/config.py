@@ -109,6 +109,8 @@ class AcousticConfig:
     "Last activation of the mixture mask: AV-NeRF's unbounded relu or the paper's sigmoid."
     direction_encoding: Literal["embedding", "fourier"] = "fourier"
     "Direction feature of B: AV-NeRF's learned circular embedding added per layer, or the paper's concatenated Fourier features."
+    post_conv: bool = False
+    "AV-NeRF's optional time-frequency conv head on the ear magnitudes (avgs.acoustics.post_conv)."
     use_context: bool = True
     "Condition B on the scene context C (False: the --no-context control)."
     lambda_a: float = 1e-4
@@ -153,6 +155,8 @@ class PointManagementConfig:
     "Radius of the outlier test in normalised scene units (paper: 0.1)."
     max_points: int = 60_000
     "Upper bound on the number of audio points."
+    initial_points: int = 0
+    "Start G_a from a seeded random subset of this many of G's points (0: all of them, up to max_points)."
     prune_max_fraction: float = 0.5
     "Skip a pruning step that would remove more than this fraction of the points (a sparse G_a, not outliers)."
 

@@ -229,7 +229,8 @@ class SceneRenderer:
         with self._lock, torch.inference_mode():
             mixture, difference, lis_idx, src_idx, theta = self._masks(listener, yaw, source)
             spec = dsp.stft(torch.from_numpy(x).to(self.device)[None], self.stft)  # [1, F, N_t]
-            y = binaural_waveform(spec, mixture[None], difference[None], x.size, self.stft)[0]  # [2, T]
+            y = binaural_waveform(spec, mixture[None], difference[None], x.size, self.stft,
+                                  self._model.binauralizer.post_conv)[0]  # [2, T]
             return RenderResult(
                 mixture=mixture.cpu().numpy(),
                 difference=difference.cpu().numpy(),
@@ -246,6 +247,12 @@ class SceneRenderer:
         """
         from avgs.streaming import BinauralStream
 
+        if self._model.binauralizer.post_conv is not None:
+            raise ValueError(
+                f"{self.path or 'this checkpoint'}: trained with the time-frequency conv head (--post-conv), whose "
+                "output depends on neighbouring frames; block streaming supports only the mask model. "
+                "Use render() on the whole signal."
+            )
         m = self.masks(listener, yaw, source)
         return BinauralStream(m.mixture, m.difference, self.stft)
 

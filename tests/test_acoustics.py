@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from avgs import dsp
 from avgs.acoustics.binauralizer import Binauralizer, CircularEmbedding
 from avgs.acoustics.encodings import positional_encoding
 from avgs.acoustics.field import AcousticField, unit_directions
@@ -190,3 +191,51 @@ def test_volume_loss_is_bounded_below_so_minimising_it_shrinks_alpha():
         loss.backward()
         opt.step()
     assert volume_loss(alpha).item() < first and alpha.detach().abs().max() <= 1.5
+
+
+# -- AV-NeRF's time-frequency conv head (--post-conv) -----------------------------------
+
+
+def test_post_conv_with_a_zero_residual_is_the_plain_mask_path():
+    from avgs.acoustics.model import binaural_waveform
+    from avgs.acoustics.post_conv import PostConv
+
+    torch.manual_seed(0)
+    x = torch.randn(2, 9000)
+    x[1, 3000:4000] = 0.0  # silent bins: the source phase is undefined there
+    spec = dsp.stft(x)  # [2, F, N]
+    mixture = torch.rand(2, 257) * 2  # >= 0, as relu/sigmoid give
+    difference = torch.rand(2, 257) * 2 - 1
+    post = PostConv()
+    with torch.no_grad():
+        post.net[-1].weight.zero_()
+        post.net[-1].bias.zero_()
+    plain = binaural_waveform(spec, mixture, difference, 9000)
+    conv = binaural_waveform(spec, mixture, difference, 9000, post_conv=post)
+    assert torch.isfinite(conv).all() and torch.allclose(conv, plain, atol=1e-5)
+
+
+def test_post_conv_model_trains_renders_any_length_and_refuses_block_streaming(tmp_path):
+    from avgs.checkpoint import save_checkpoint, untrained_checkpoint
+    from avgs.config import TrainConfig
+    from avgs.inference import SceneRenderer
+
+    cfg = TrainConfig()
+    cfg.acoustic.post_conv = True
+    points = AudioPoints(torch.rand(200, 3) * 2 - 1, torch.randn(200, 52))
+    model = AVGSModel(points, cfg.acoustic)
+    mono_mag = dsp.stft(torch.randn(2, 22050)).abs()  # [2, F, N]
+    (s_m, s_l, s_r), _ = model(torch.zeros(2, 3), torch.tensor([0.5, -0.5]), torch.ones(3) * 0.5, mono_mag)
+    assert (s_l >= 0).all() and (s_r >= 0).all() and s_l.shape == mono_mag.shape
+    s_l.sum().backward()
+    assert model.binauralizer.post_conv.net[0].weight.grad.abs().sum() > 0
+
+    rng = np.random.default_rng(0)
+    ckpt = untrained_checkpoint(rng.uniform(0, 4, (300, 3)), [2.0, 2.0, 1.0], config=cfg)
+    path = save_checkpoint(ckpt, tmp_path / "conv.ckpt")
+    r = SceneRenderer.load(path)
+    for n in (1, 100, 513, 30000):
+        y = r.render((1.0, 1.0, 1.0), 30.0, rng.standard_normal(n)).binaural
+        assert y.shape == (2, n) and np.all(np.isfinite(y))
+    with pytest.raises(ValueError, match="conv head"):
+        r.stream((1.0, 1.0, 1.0), 30.0)

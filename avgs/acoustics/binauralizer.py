@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from avgs.acoustics.encodings import encoded_dim, positional_encoding
+from avgs.acoustics.post_conv import PostConv
 
 THETA_SCALE = 1.0 / (1.01 * math.pi)
 "theta (radians, in (-pi, pi]) times this lies strictly inside (-1, 1)."
@@ -77,6 +78,7 @@ class Binauralizer(nn.Module):
         direction_encoding: str = "embedding",
         direction_embedding: int = 180,
         mlp_layers: int = 4,
+        post_conv: bool = False,
     ):
         super().__init__()
         if mixture_activation not in ("relu", "sigmoid"):
@@ -102,6 +104,7 @@ class Binauralizer(nn.Module):
             self.direction = None
             self.diff_mlp = _linear_relu_stack(width, mlp_layers, in_dim=width + encoded_dim(1, pe_frequencies))
         self.diff_head = nn.Linear(width, 1)
+        self.post_conv = PostConv() if post_conv else None  # applied to magnitudes, see AVGSModel
 
     def forward(
         self, listener_xy: torch.Tensor, theta: torch.Tensor, context: torch.Tensor | None = None

@@ -79,6 +79,7 @@ class AVGSModel(nn.Module):
             mixture_activation=cfg.mixture_activation,
             direction_encoding=cfg.direction_encoding,
             direction_embedding=cfg.direction_embedding,
+            post_conv=cfg.post_conv,
         )
 
     # -- vicinity and context ------------------------------------------------------------
@@ -134,18 +135,32 @@ class AVGSModel(nn.Module):
     def forward(self, listener: torch.Tensor, theta: torch.Tensor, source: torch.Tensor, mono_mag: torch.Tensor):
         """Predicted magnitudes: (s_m, s_l, s_r) each [B, F, N_t], and the :class:`Masks`."""
         m = self.masks(listener, theta, source)
-        return apply_masks(mono_mag, m.mixture, m.difference), m
+        s_m, s_l, s_r = apply_masks(mono_mag, m.mixture, m.difference)
+        post = self.binauralizer.post_conv
+        if post is not None:
+            s_l, s_r = post(mono_mag, m.mixture, m.difference, s_l, s_r)
+        return (s_m, s_l, s_r), m
 
 
-def binaural_waveform(mono_stft: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor, length: int, stft=STFT):
+def binaural_waveform(
+    mono_stft: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor, length: int, stft=STFT, post_conv=None
+):
     """iSTFT of the masked magnitudes with the source phase.
 
     mono_stft: [B, F, N_t] complex; masks [B, F] -> [B, 2, length] (channel 0 = left).
+    ``post_conv``: the binauralizer's :class:`~avgs.acoustics.post_conv.PostConv`, or None.
     """
     from avgs import dsp
 
     # |S| m e^{i phase(S)} = S m: the masks scale the source spectrum, keeping its phase.
     gain_l = mixture * (1.0 + difference)  # [B, F]
     gain_r = mixture * (1.0 - difference)  # [B, F]
-    spec = mono_stft[:, None] * torch.stack([gain_l, gain_r], dim=1)[..., None]  # [B, 2, F, N_t]
+    if post_conv is None:
+        spec = mono_stft[:, None] * torch.stack([gain_l, gain_r], dim=1)[..., None]  # [B, 2, F, N_t]
+        return dsp.istft(spec, length, stft)
+    mag = mono_stft.abs()  # [B, F, N_t]
+    s_l, s_r = post_conv(mag, mixture, difference, mag * gain_l[..., None], mag * gain_r[..., None])
+    # The source phase; a silent bin (|S| = 0) gets phase 0 rather than 0/0.
+    phase = torch.where(mag > 0, mono_stft / mag.clamp_min(torch.finfo(mag.dtype).tiny), torch.ones_like(mono_stft))
+    spec = torch.stack([s_l, s_r], dim=1) * phase[:, None]  # [B, 2, F, N_t]
     return dsp.istft(spec, length, stft)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from avgs.config import AcousticConfig, GaussianConfig, TrainConfig, field_help
+from avgs.config import AcousticConfig, GaussianConfig, PointManagementConfig, TrainConfig, field_help
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,8 +27,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vicinity-percentile", type=float, metavar="P", help=field_help(AcousticConfig, "vicinity_percentile"))
     parser.add_argument("--alpha-init", metavar="SPEC", help=field_help(AcousticConfig, "alpha_init") + " (sh+r, sh, r, s, o, ...)")
     parser.add_argument("--init", choices=("gs", "sfm"), help=field_help(TrainConfig, "init"))
+    parser.add_argument("--audio-points", type=int, metavar="N", help=field_help(PointManagementConfig, "initial_points"))
     parser.add_argument("--no-point-management", action="store_true", help="Turn audio-aware densification and pruning off.")
     parser.add_argument("--no-context", action="store_true", help="Drop the scene context C (the control model).")
+    parser.add_argument("--post-conv", dest="post_conv", action="store_true", default=None,
+                        help=field_help(AcousticConfig, "post_conv"))
+    parser.add_argument("--no-post-conv", dest="post_conv", action="store_false")
     parser.add_argument("--no-gaussians", action="store_true", help="Do not store G in the checkpoint.")
     parser.add_argument("--device", choices=("cpu", "cuda"), help=field_help(TrainConfig, "device"))
     parser.add_argument("--seed", type=int, help=field_help(TrainConfig, "seed"))
@@ -50,6 +54,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "iterations": (cfg.acoustic, "iterations"),
         "vicinity_percentile": (cfg.acoustic, "vicinity_percentile"),
         "alpha_init": (cfg.acoustic, "alpha_init"),
+        "post_conv": (cfg.acoustic, "post_conv"),
+        "audio_points": (cfg.points, "initial_points"),
         "init": (cfg, "init"),
         "device": (cfg, "device"),
         "seed": (cfg, "seed"),

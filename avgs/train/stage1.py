@@ -140,7 +140,8 @@ def reusable(data: dict, scene_name: str, cfg: TrainConfig) -> bool:
 
 def audio_points_from(gaussians: dict | None, geometry, cfg: TrainConfig) -> AudioPoints:
     """G_a: X from G's means and alpha from G's parameters (``init="gs"``), or both from the
-    scene's geometry points (``init="sfm"``); capped at ``cfg.points.max_points`` by a seeded subset."""
+    scene's geometry points (``init="sfm"``); capped at ``cfg.points.initial_points`` (else
+    ``max_points``) by a seeded random subset."""
     from avgs.gaussians.model import GaussianModel
 
     spec = cfg.acoustic.alpha_init
@@ -154,7 +155,8 @@ def audio_points_from(gaussians: dict | None, geometry, cfg: TrainConfig) -> Aud
     else:
         X = torch.as_tensor(np.asarray(geometry[0]), dtype=torch.float32)  # [N, 3]
         alpha = alpha_from_colors(torch.as_tensor(np.asarray(geometry[1])), spec)  # [N, D]
-    if len(X) > cfg.points.max_points:
-        keep = torch.randperm(len(X), generator=torch.Generator().manual_seed(cfg.seed))[: cfg.points.max_points]
+    cap = min(cfg.points.max_points, cfg.points.initial_points or cfg.points.max_points)
+    if len(X) > cap:
+        keep = torch.randperm(len(X), generator=torch.Generator().manual_seed(cfg.seed))[:cap]
         X, alpha = X[keep], alpha[keep]
     return AudioPoints(X, alpha)

@@ -109,7 +109,8 @@ class Stage2Trainer:
             sl = slice(i, i + chunk)
             m = self.model.masks(data.listener[sl].to(self.device), data.theta[sl].to(self.device), source, cached)
             spec = data.mono_stft[sl].to(self.device)
-            out.append(binaural_waveform(spec, m.mixture, m.difference, data.mono.shape[-1], self.cfg.stft).cpu())
+            out.append(binaural_waveform(spec, m.mixture, m.difference, data.mono.shape[-1], self.cfg.stft,
+                                         self.model.binauralizer.post_conv).cpu())
         return torch.cat(out)
 
     def evaluate(self, data) -> dict:
