@@ -69,15 +69,42 @@ class CheckpointMethod:
         return out.binaural
 
 
+class CheckpointSetMethod:
+    """A folder of checkpoints, one per scene, as one method: each scores the scene it was
+    trained on (``ckpt:DIR`` on the command line, e.g. one run of ``avgs train`` per scene)."""
+
+    def __init__(self, folder: str | Path, device: str = "cpu"):
+        self.folder = Path(folder)
+        paths = sorted(self.folder.glob("*.ckpt"))
+        if not paths:
+            raise FileNotFoundError(f"{self.folder}: no *.ckpt files in this folder")
+        self.by_scene: dict[str, CheckpointMethod] = {}
+        for path in paths:
+            method = CheckpointMethod(path, device=device)
+            name = method.scene_name or path.stem
+            if name in self.by_scene:
+                raise ValueError(f"{self.folder}: two checkpoints for scene {name!r} ({self.by_scene[name].path.name}, {path.name})")
+            self.by_scene[name] = method
+
+    def applies_to(self, scene: RWAVSScene) -> bool:
+        return scene.name in self.by_scene
+
+    def __call__(self, clip: AudioClip, scene: RWAVSScene) -> np.ndarray:
+        return self.by_scene[scene.name](clip, scene)
+
+
 def method_names() -> list[str]:
-    """What ``--method`` accepts: the baselines' names and ``ckpt:PATH``."""
-    return [*BASELINES, f"{CKPT_PREFIX}PATH"]
+    """What ``--method`` accepts: the baselines' names, ``ckpt:PATH`` and ``ckpt:DIR`` (one checkpoint per scene)."""
+    return [*BASELINES, f"{CKPT_PREFIX}PATH", f"{CKPT_PREFIX}DIR"]
 
 
 def load_method(spec: str, device: str = "cpu") -> Method:
-    """A method from its command-line name: a baseline or ``ckpt:PATH``."""
+    """A method from its command-line name: a baseline, ``ckpt:PATH`` or ``ckpt:DIR``."""
     if spec.startswith(CKPT_PREFIX):
-        return CheckpointMethod(spec[len(CKPT_PREFIX) :], device=device)
+        path = Path(spec[len(CKPT_PREFIX) :])
+        if path.is_dir():
+            return CheckpointSetMethod(path, device=device)
+        return CheckpointMethod(path, device=device)
     if spec in BASELINES:
         return BASELINES[spec]
     raise ValueError(f"unknown method {spec!r}; expected one of {', '.join(method_names())}")

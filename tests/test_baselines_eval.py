@@ -130,3 +130,23 @@ def test_cli_scene_selection_defaults_and_errors(data_root, tmp_path, capsys):
     assert "none.ckpt" in capsys.readouterr().err
     assert main(["eval", str(tmp_path / "nowhere")]) == 2
     assert "data root missing" in capsys.readouterr().err
+
+
+def test_a_folder_of_checkpoints_is_one_method_each_scoring_its_own_scene(data_root, tmp_path):
+    from avgs.checkpoint import save_checkpoint, untrained_checkpoint
+
+    folder = tmp_path / "runs"
+    for name in ("office_1", "garden-1"):
+        scene = RWAVSScene(data_root / name)
+        pts = scene.frame.to_world(np.random.default_rng(0).uniform(-1, 1, (200, 3)))
+        save_checkpoint(untrained_checkpoint(pts, scene.frame.to_world(scene.source), frame=scene.frame, name=name),
+                        folder / f"{name}.ckpt")
+    out = tmp_path / "scores.json"
+    assert main(["eval", str(data_root), "--method", "stereo-energy", "--method", f"ckpt:{folder}",
+                 "--json", str(out), "--no-progress"]) == 0
+    scores = json.loads(out.read_text())["methods"][f"ckpt:{folder}"]
+    assert set(scores["scenes"]) == {"office_1", "garden-1"}  # the scenes it has checkpoints for
+    assert all(np.isfinite(v["MAG"]) for v in scores["scenes"].values())
+    (folder / "copy.ckpt").write_bytes((folder / "office_1.ckpt").read_bytes())
+    with pytest.raises(ValueError, match="two checkpoints for scene 'office_1'"):
+        evaluate.load_method(f"ckpt:{folder}")
