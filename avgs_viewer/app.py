@@ -41,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--colour-mode", choices=("vicinity", "alpha", "rgb"), default="vicinity",
                    help="what the point colours show (default vicinity)")
     g.add_argument("--no-legend", action="store_true", help="leave the legend out of the screenshot")
+    b = p.add_argument_group("benchmark (no window)")
+    b.add_argument("--bench", type=Path, default=None, metavar="OUT.md",
+                   help="measure drag-to-audio latency and orbit frame rate, write OUT.md and exit")
     return p
 
 
@@ -103,6 +106,15 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         scene = resolve_scene(args.scene)
+        if args.bench is not None:
+            if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+                os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+            from .bench import run_viewer_bench
+
+            r = run_viewer_bench(scene, args.bench, size=tuple(args.size))
+            print(f"drag -> audio live: median {r['latency']['median_ms']:.1f} ms, p95 {r['latency']['p95_ms']:.1f} ms; "
+                  f"orbit {r['orbit']['fps']:.1f} FPS; wrote {args.bench}")
+            return 0
         if args.screenshot is not None or args.audio is not None:
             return run_headless(args, scene)
     except (ValueError, FileNotFoundError) as exc:

@@ -206,3 +206,15 @@ def test_command_line_errors_are_one_clean_line(tmp_path, monkeypatch, capsys):
     (tmp_path / "bad.ckpt").write_bytes(b"garbage")
     assert app.main([str(tmp_path / "bad.ckpt"), "--audio", str(tmp_path / "x.wav")]) == 2
     assert "not an AV-GS checkpoint" in capsys.readouterr().err
+
+
+def test_viewer_bench_command_writes_its_report(room, tmp_path):
+    path, renderer, _ = room
+    out = tmp_path / "viewer.md"
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "VTK_DEFAULT_OPENGL_WINDOW")}
+    proc = subprocess.run([sys.executable, "-m", "avgs_viewer.app", str(path), "--bench", str(out), "--size", "400", "300"],
+                          capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    text = out.read_text()
+    assert "drag end -> new audio live" in text and "orbit" in text and str(len(renderer.points)) in text
+    assert "median" in proc.stdout and "FPS" in proc.stdout
