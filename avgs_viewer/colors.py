@@ -137,4 +137,4 @@ def vicinity_legend() -> list[tuple[str, tuple[int, int, int]]]:
 
 
 def rgb_legend() -> list[tuple[str, tuple[int, int, int]]]:
-    return [("colour of the nearest Gaussian of G", (200, 200, 200))]
+    return [("G's colour (nearest Gaussian)", (200, 200, 200))]

@@ -159,8 +159,13 @@ class SceneView:
         """A legend of the colour mode inside the 3D view (used for exported pictures)."""
         rows = [[text, [c / 255 for c in colour]] for text, colour in self.legend_rows()]
         rows += [["listener", list(colors.LISTENER_COLOUR)], ["source", list(colors.SOURCE_COLOUR)]]
-        self.plotter.add_legend(rows, bcolor=[c / 255 for c in BACKGROUND], size=(0.3, 0.2),
-                                loc="upper right", name="legend", face="circle")
+        # VTK fits the text to the box: size the box by the longest label so no row is cut.
+        longest = max(len(text) for text, _ in rows)
+        size = (min(0.6, 0.05 + 0.0125 * longest), min(0.4, 0.045 * len(rows)))
+        legend = self.plotter.add_legend(rows, bcolor=[c / 255 for c in BACKGROUND], size=size,
+                                         loc="upper right", name="legend", face="circle")
+        legend.SetPosition(0.98 - size[0], 0.98 - size[1])  # flush with the top right corner
+        legend.SetPosition2(*size)
         self._legend_shown = True
 
     @property
