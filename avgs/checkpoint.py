@@ -22,13 +22,12 @@ Writes are atomic (temp file in the same folder, then ``os.replace``).
 from __future__ import annotations
 
 import dataclasses
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from avgs.atomic import torch_save
 from avgs.config import STFT, STFTConfig, TrainConfig
 from avgs.data.frame import SceneFrame
 
@@ -43,19 +42,7 @@ REQUIRED_KEYS = ("format_version", "frame", "source", "stft", "audio_points", "f
 
 def save_checkpoint(ckpt: dict, path: str | Path) -> Path:
     """Write ``ckpt`` to ``path`` atomically; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(ckpt, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return torch_save(ckpt, path)
 
 
 def _plain_state(module: torch.nn.Module | None) -> dict:

@@ -15,11 +15,8 @@ scene name itself (real RWAVS scenes are numbered, so each is its own environmen
 
 from __future__ import annotations
 
-import json
 import math
-import os
 import re
-import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -27,7 +24,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from avgs import metrics
+from avgs import atomic, metrics
 from avgs.baselines import BASELINES
 from avgs.data.rwavs import AudioClip, RWAVSScene, is_scene_dir
 
@@ -239,14 +236,4 @@ def format_report(report: dict) -> str:
 
 def write_json_atomic(path: str | Path, data) -> None:
     """Write ``data`` as JSON to ``path`` through a temporary file and ``os.replace``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic.write_json(path, data)

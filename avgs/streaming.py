@@ -126,7 +126,7 @@ class BinauralStream:
         """Feed ``block [n]`` (mono, finite); returns the output samples now final ``[2, m]``."""
         x = self._check(block)
         self._received += len(x)
-        n, hop, pad = self.stft.n_fft, self._hop, self._pad
+        hop, pad = self._hop, self._pad
         if not self._started:
             self._head = np.concatenate([self._head, x])
             if len(self._head) <= pad:  # too short to build the reflect padding yet

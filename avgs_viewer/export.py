@@ -7,28 +7,20 @@ is written atomically (a temporary file in the target folder, then ``os.replace`
 
 from __future__ import annotations
 
-import os
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
 
+from avgs.atomic import atomic_path as _atomic_path
+
 
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` (same suffix); moved onto ``path`` on success."""
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"cannot write {path}: folder {path.parent} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    with _atomic_path(path, make_parents=False) as tmp:
+        yield tmp
 
 
 def write_wav(path: str | Path, binaural: np.ndarray, sample_rate: int) -> Path:

@@ -139,3 +139,20 @@ def test_render_from_a_worker_thread(ckpt_path):
         assert r.points.shape == (400, 3)  # reading the immutable arrays meanwhile
     worker.join()
     assert len(results) == 5 and all(np.array_equal(b, ref) for b in results)
+
+
+def test_atomic_writes_leave_nothing_half_written_and_get_normal_permissions(tmp_path):
+    import os
+    import stat
+
+    from avgs.atomic import atomic_path, write_text
+
+    path = write_text(tmp_path / "a.txt", "hello")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~mask  # not mkstemp's 0600
+    with pytest.raises(RuntimeError):
+        with atomic_path(tmp_path / "a.txt") as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("writer failed")
+    assert path.read_text() == "hello" and sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]

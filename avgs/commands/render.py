@@ -4,8 +4,6 @@ binauralise a mono (or down-mixed stereo) WAV for one listener pose, world coord
 from __future__ import annotations
 
 import argparse
-import os
-import tempfile
 from pathlib import Path
 
 
@@ -49,16 +47,10 @@ def write_wav_atomic(path: str | Path, audio, sample_rate: int) -> None:
     """``audio [C, T]`` as a float WAV, written to a temp file then renamed."""
     import soundfile as sf
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".wav", dir=path.parent)
-    os.close(fd)
-    try:
+    from avgs.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
         sf.write(tmp, audio.T, sample_rate, subtype="FLOAT", format="WAV")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def run(args: argparse.Namespace) -> int:

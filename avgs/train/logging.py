@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
+
+from avgs.atomic import atomic_path, write_text
 
 
 def log_paths(checkpoint: str | Path) -> tuple[Path, Path]:
@@ -29,21 +29,13 @@ class JsonLinesLog:
         """Start ``path`` afresh with ``records`` (e.g. the history of a resumed checkpoint)."""
         self.path = Path(path)
         self.records: list[dict] = [dict(r) for r in (records or [])]
-        _atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in self.records))
+        write_text(self.path, "".join(json.dumps(r) + "\n" for r in self.records))
 
     def write(self, record: dict) -> None:
         record = {k: _plain(v) for k, v in record.items()}
         self.records.append(record)
         with open(self.path, "a", encoding="utf-8") as f:
             f.write(json.dumps(record) + "\n")
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(text)
-    os.replace(tmp, path)
 
 
 def plot_curves(records: list[dict], path: str | Path) -> Path:
@@ -77,8 +69,6 @@ def plot_curves(records: list[dict], path: str | Path) -> Path:
     for ax in axes:
         ax.set_xlabel("iteration")
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
-    os.close(fd)
-    fig.savefig(tmp, format="png")
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
     return path

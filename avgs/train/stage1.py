@@ -15,14 +15,13 @@ The file is a ``torch.save`` dict of tensors and plain values (``weights_only`` 
 from __future__ import annotations
 
 import dataclasses
-import os
-import tempfile
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 import torch
 
+from avgs.atomic import torch_save
 from avgs.acoustics.points import AudioPoints, alpha_from_colors, alpha_from_gaussians, parse_alpha_spec
 from avgs.config import TrainConfig
 
@@ -92,8 +91,6 @@ def train_stage1(
 
 def save_stage1(path: str | Path, scene_name: str, cfg: TrainConfig, gaussians: dict, stats: dict, history: list[dict]) -> Path:
     """Write the stage-1 file atomically."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     data = {
         "format": STAGE1_FORMAT,
         "version": STAGE1_VERSION,
@@ -103,15 +100,7 @@ def save_stage1(path: str | Path, scene_name: str, cfg: TrainConfig, gaussians: 
         "stats": {k: v for k, v in stats.items() if isinstance(v, (int, float, str, bool, type(None)))},
         "history": list(history),
     }
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(data, f)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return torch_save(data, path)
 
 
 def load_stage1(path: str | Path) -> dict:

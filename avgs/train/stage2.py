@@ -7,7 +7,6 @@ All training magnitudes are precomputed once (:class:`avgs.data.rwavs.ClipDatase
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import torch
