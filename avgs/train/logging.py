@@ -56,7 +56,12 @@ def plot_curves(records: list[dict], path: str | Path) -> Path:
     for stage, label in (("stage1", "stage 1 (RGB)"), ("stage2", "stage 2 (audio)")):
         x, y = series(stage, "loss")
         if x:
-            axes[0].plot(x, y, label=label)
+            # Losses of single small batches are noisy: draw them faintly, and a running mean over
+            # about a tenth of the run on top.
+            line = axes[0].plot(x, y, alpha=0.25, linewidth=0.8)[0]
+            w = max(1, len(y) // 10)
+            smooth = [sum(y[max(0, i - w + 1): i + 1]) / (i + 1 - max(0, i - w + 1)) for i in range(len(y))]
+            axes[0].plot(x, smooth, color=line.get_color(), label=label)
     axes[0].set_yscale("log")
     axes[0].set_title("loss")
     axes[0].legend(fontsize=7)
