@@ -216,11 +216,7 @@ class ViewerState:
         return self._colour_mode
 
     def set_colour_mode(self, mode: Any) -> None:
-        mode = self._check_mode(mode)
-        if mode is self._colour_mode:
-            return
-        self._colour_mode = mode
-        self.events.colour_mode.emit(mode)
+        self._change("colour_mode", self._check_mode(mode))
 
     @property
     def slice_height(self) -> float:
@@ -228,11 +224,7 @@ class ViewerState:
         return self._slice_height
 
     def set_slice_height(self, z: float) -> None:
-        z = float(np.clip(float(z), self.bounds[0, 2], self.bounds[1, 2]))
-        if z == self._slice_height:
-            return
-        self._slice_height = z
-        self.events.slice_height.emit(z)
+        self._change("slice_height", float(np.clip(float(z), self.bounds[0, 2], self.bounds[1, 2])))
 
     @property
     def interacting(self) -> bool:
@@ -240,11 +232,7 @@ class ViewerState:
         return self._interacting
 
     def set_interacting(self, flag: bool) -> None:
-        flag = bool(flag)
-        if flag == self._interacting:
-            return
-        self._interacting = flag
-        self.events.interacting.emit(flag)
+        self._change("interacting", bool(flag))
 
     # ------------------------------------------------------------------ playback
     @property
@@ -252,22 +240,22 @@ class ViewerState:
         return self._volume
 
     def set_volume(self, volume: float) -> None:
-        volume = float(np.clip(float(volume), 0.0, 1.0))
-        if volume == self._volume:
-            return
-        self._volume = volume
-        self.events.volume.emit(volume)
+        self._change("volume", float(np.clip(float(volume), 0.0, 1.0)))
 
     @property
     def playing(self) -> bool:
         return self._playing
 
     def set_playing(self, flag: bool) -> None:
-        flag = bool(flag)
-        if flag == self._playing:
-            return
-        self._playing = flag
-        self.events.playing.emit(flag)
+        self._change("playing", bool(flag))
+
+    def _change(self, name: str, value: Any) -> bool:
+        """Set ``self._<name>`` and emit ``events.<name>`` only when the value changes."""
+        if value == getattr(self, f"_{name}"):
+            return False
+        setattr(self, f"_{name}", value)
+        getattr(self.events, name).emit(value)
+        return True
 
     def toggle_playing(self) -> None:
         self.set_playing(not self._playing)
