@@ -8,7 +8,6 @@ are present.
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 

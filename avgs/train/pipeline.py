@@ -56,25 +56,16 @@ def _stage1(scene, cfg: TrainConfig, log: JsonLinesLog, progress: bool, cache: P
     geometry = geometry_points(scene.root, scene.metadata, cfg)
     gaussians = None
     if needs_gaussians(cfg):
-        if given is not None or (cache.is_file() and reusable(load_stage1(cache), scene.name, cfg)):
-            source = given if given is not None else cache
-            data = load_stage1(source)
-            if given is not None and data.get("scene") != scene.name:
-                raise ValueError(f"{given}: stage 1 of scene {data.get('scene')!r}, not of {scene.name!r}")
+        data = load_stage1(given) if given is not None else (load_stage1(cache) if cache.is_file() else None)
+        if given is not None and data.get("scene") != scene.name:
+            raise ValueError(f"{given}: stage 1 of scene {data.get('scene')!r}, not of {scene.name!r}")
+        if data is not None and (given is not None or reusable(data, scene.name, cfg)):
             for record in data.get("history", []):
                 log.write(record)
-            log.write({"stage": "stage1", "event": "reused", "file": str(source)})
+            log.write({"stage": "stage1", "event": "reused", "file": str(given or cache)})
             gaussians = data["gaussians"]
         else:
-            history: list[dict] = []
-
-            def log_fn(record: dict) -> None:
-                history.append({"stage": "stage1", **record})
-                log.write(history[-1])
-
-            gaussians, stats = train_stage1(scene.root, cfg, progress=progress, log_fn=log_fn)
-            log.write({"stage": "stage1", "event": "trained", **{k: v for k, v in stats.items() if k != "backend"},
-                       "backend": str(stats.get("backend"))})
+            gaussians, stats, history = _train_stage1_logged(scene.root, cfg, progress, log.write)
             save_stage1(cache, scene.name, cfg, gaussians, stats, history)
     points = audio_points_from(gaussians if cfg.init == "gs" else None, geometry, cfg)
     return points, (gaussians if cfg.store_gaussians else None)
@@ -90,11 +81,22 @@ def run_stage1_only(scene_dir: str | Path, out: str | Path, cfg: TrainConfig | N
     if not scene_dir.is_dir():
         raise FileNotFoundError(f"{scene_dir}: scene folder missing")
     geometry_points(scene_dir, read_scene_metadata(scene_dir), cfg)  # fail early on --init sfm without geometry
-    history: list[dict] = []
-    gaussians, stats = train_stage1(scene_dir, cfg, progress=progress, log_fn=lambda r: history.append({"stage": "stage1", **r}))
-    history.append({"stage": "stage1", "event": "trained", **{k: v for k, v in stats.items() if k != "backend"},
-                    "backend": str(stats.get("backend"))})
+    gaussians, stats, history = _train_stage1_logged(scene_dir, cfg, progress)
     return save_stage1(stage1_path(out), scene_dir.name, cfg, gaussians, stats, history)
+
+
+def _train_stage1_logged(scene_dir: Path, cfg: TrainConfig, progress: bool, sink=None):
+    """Train G; returns ``(gaussians, stats, history)``, each history record also sent to ``sink``."""
+    history: list[dict] = []
+
+    def record(r: dict) -> None:
+        history.append({"stage": "stage1", **r})
+        if sink is not None:
+            sink(history[-1])
+
+    gaussians, stats = train_stage1(scene_dir, cfg, progress=progress, log_fn=record)
+    record({"event": "trained", **{k: v for k, v in stats.items() if k != "backend"}, "backend": str(stats.get("backend"))})
+    return gaussians, stats, history
 
 
 def _bounds_world(scene, X: torch.Tensor, gaussians: dict | None) -> np.ndarray:
