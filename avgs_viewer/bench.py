@@ -122,13 +122,13 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, frames: int = 60, s
     The orbit is drawn off screen (EGL, or Mesa under Xvfb): the points as the window draws them.
     """
     import json
-    import os
     from pathlib import Path
 
     import pyvista as pv
     import torch
 
     from avgs import SceneRenderer
+    from avgs.atomic import write_text
     from avgs.bench.machine import machine_info
 
     from .scene_view import SceneView
@@ -150,7 +150,6 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, frames: int = 60, s
     result = {"scene": str(scene_path), "points": int(len(renderer.points)), "latency": latency, "orbit": orbit,
               "gl_renderer": renderer_line, "window": list(size), "machine": info}
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     lines = [
         "# Viewer benchmark",
         "",
@@ -174,7 +173,5 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, frames: int = 60, s
         "```",
         "",
     ]
-    tmp = out.with_name(f".{out.name}.tmp{os.getpid()}")
-    tmp.write_text("\n".join(lines))
-    os.replace(tmp, out)
+    write_text(out, "\n".join(lines))
     return result

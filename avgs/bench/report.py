@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from avgs.atomic import atomic_path, write_text
+
 PAPER_ANCHORS_S = {"AV-NeRF (paper)": 1.4, "AV-GS (paper)": 0.08}
 "Inference time per pose quoted by the AV-GS paper (its GPU; ours is measured here)."
 SECTIONS = ("Headline", "Machine", "Inference latency", "Speed against error", "Point budgets", "Training throughput", "Notes")
@@ -75,7 +77,8 @@ def plot_latency(latency: dict, path: Path) -> Path:
     ax.set_title("before / after")
     ax.tick_params(axis="y", labelsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return path
 
@@ -105,7 +108,8 @@ def plot_speed_error(summary: list[dict], path: Path) -> Path:
     axes[0].legend(fontsize=7)
     fig.suptitle("speed against error (numbers on simulator points: image-source order)", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return path
 
@@ -126,7 +130,8 @@ def plot_points(budgets: list[dict], path: Path) -> Path:
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return path
 
@@ -165,7 +170,7 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
     """Write REPORT.md, the PNGs and results.json into ``out_dir``; returns the report's path."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps(results, indent=1, default=str) + "\n")
+    write_text(out / "results.json", json.dumps(results, indent=1, default=str) + "\n")
     lat = results.get("latency", {})
     se = results.get("speed_error", {})
     summary = se.get("summary", [])
@@ -278,7 +283,7 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
     L += [f"- {n}" for n in results.get("notes", [])]
     L += ["", f"Reproduce: `{m['command']}` (results.json holds every number above).", ""]
     path = out / "REPORT.md"
-    path.write_text("\n".join(L))
+    write_text(path, "\n".join(L))
     if lat:
         plot_latency(lat, out / "latency.png")
     if summary:

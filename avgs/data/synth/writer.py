@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from avgs.atomic import write_text
 from avgs.data.synth import GENERATOR_VERSION
 from avgs.data.synth.materials import material_record
 from avgs.data.synth.poses import Pose, sample_poses
@@ -222,12 +223,6 @@ def _write_json(path: Path, obj) -> None:
     path.write_text(json.dumps(obj, indent=1) + "\n")
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 @contextlib.contextmanager
 def _locked(path: Path):
     """An exclusive advisory lock on ``path`` (a no-op where fcntl is unavailable)."""
@@ -257,7 +252,7 @@ def merge_position(out_root: Path, scene_id: str, source_normalised) -> None:
             if not isinstance(table, dict):
                 raise ValueError(f"{path}: expected a JSON object of scenes")
         table[scene_id] = {"source_position": [float(v) for v in source_normalised]}
-        _atomic_write_text(path, json.dumps(table, indent=1, sort_keys=True) + "\n")
+        write_text(path, json.dumps(table, indent=1, sort_keys=True) + "\n")
 
 
 def _save_png(path: Path, rgb: np.ndarray) -> None:
