@@ -53,7 +53,8 @@ def _stage1(scene, cfg: TrainConfig, log: JsonLinesLog, progress: bool, cache: P
     G comes from ``given`` (a stage-1 file), else from ``cache`` when it was made for this
     scene and these settings, else it is trained and written to ``cache``.
     """
-    geometry = geometry_points(scene.root, scene.metadata, cfg)
+    # Geometry points seed G_a only with --init sfm (stage 1 samples its own init points).
+    geometry = geometry_points(scene.root, scene.metadata, cfg) if cfg.init == "sfm" else None
     gaussians = None
     if needs_gaussians(cfg):
         data = load_stage1(given) if given is not None else (load_stage1(cache) if cache.is_file() else None)
@@ -74,13 +75,10 @@ def _stage1(scene, cfg: TrainConfig, log: JsonLinesLog, progress: bool, cache: P
 def run_stage1_only(scene_dir: str | Path, out: str | Path, cfg: TrainConfig | None = None, *, progress: bool = True) -> Path:
     """Stage 1 alone (frames and poses only, no audio read): writes ``<out>.stage1.pt``, which a
     later ``train_scene(scene_dir, out, ...)`` with the same settings picks up."""
-    from avgs.data.rwavs import read_scene_metadata
-
     cfg = copy.deepcopy(cfg or TrainConfig())
     scene_dir = Path(scene_dir).resolve()
     if not scene_dir.is_dir():
         raise FileNotFoundError(f"{scene_dir}: scene folder missing")
-    geometry_points(scene_dir, read_scene_metadata(scene_dir), cfg)  # fail early on --init sfm without geometry
     gaussians, stats, history = _train_stage1_logged(scene_dir, cfg, progress)
     return save_stage1(stage1_path(out), scene_dir.name, cfg, gaussians, stats, history)
 
