@@ -7,6 +7,12 @@ baselines: they read the ground-truth energy of the clip they predict.
 - Mono-Mono: the source copied to both ears.
 - Mono-Energy: the source scaled to the target's mean energy (both channels), both ears.
 - Stereo-Energy: the source scaled, per ear, to that ear's target energy.
+- Oracle-Mask (not in the paper; a bound, not a method): per ear and frequency, the
+  least-squares time-invariant gain fitted to the clip's own ground truth,
+  ``g(f) = sum_t |S||B| / sum_t |S|^2``. No model made of time-invariant masks (the
+  paper's binauralizer) can have a lower magnitude error on that clip's STFT
+  frames, which makes it the ceiling of the mask model and shows what a reverberant
+  tail has to add.
 
 Energies are mean squares of the waveforms; a silent source gives silence.
 """
@@ -46,9 +52,27 @@ def stereo_energy(clip: "AudioClip", scene: "RWAVSScene | None" = None) -> np.nd
     return (g[:, None] * mono[None, :]).astype(np.float32)
 
 
+def oracle_mask(clip: "AudioClip", scene: "RWAVSScene | None" = None) -> np.ndarray:
+    """The best time-invariant mask per ear for this clip's own target: ``[2, T]``."""
+    import torch
+
+    from avgs import dsp
+
+    mono = torch.from_numpy(np.ascontiguousarray(clip.mono, dtype=np.float32))
+    spec = dsp.stft(mono[None].double())[0]  # [F, N] complex
+    target = dsp.magnitude(torch.from_numpy(np.ascontiguousarray(clip.binaural)).double())  # [2, F, N]
+    mag = spec.abs()
+    num = (mag[None] * target).sum(-1)  # [2, F]
+    den = mag.square().sum(-1)  # [F]
+    gains = torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num))  # [2, F]
+    y = dsp.istft(spec[None] * gains[..., None], mono.shape[-1])  # [2, T]
+    return y.float().numpy()
+
+
 BASELINES = {
     "mono-mono": mono_mono,
     "mono-energy": mono_energy,
     "stereo-energy": stereo_energy,
+    "oracle-mask": oracle_mask,
 }
 "The baselines by their command-line names, in the paper's order."

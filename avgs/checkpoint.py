@@ -133,6 +133,7 @@ def untrained_checkpoint(
         AudioPoints(torch.as_tensor(frame.to_normalised(pts), dtype=torch.float32), torch.as_tensor(alpha)),
         config.acoustic,
         config.stft.n_freq,
+        stft=config.stft,
     )
     return build_checkpoint(
         model,

@@ -111,6 +111,8 @@ class AcousticConfig:
     "Direction feature of B: AV-NeRF's learned circular embedding added per layer, or the paper's concatenated Fourier features."
     post_conv: bool = False
     "AV-NeRF's optional time-frequency conv head on the ear magnitudes (avgs.acoustics.post_conv)."
+    reverb_tail: bool = True
+    "Add a learned late-reverberation tail to B's masks (avgs.acoustics.reverb_tail); off: the paper's masks only."
     use_context: bool = True
     "Condition B on the scene context C (False: the --no-context control)."
     lambda_a: float = 1e-4
@@ -189,6 +191,8 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "TrainConfig":
+        """From :meth:`to_dict` output, including that of older versions: unknown keys are
+        ignored, and a field added later takes the value that reproduces the old behaviour."""
         d = dict(d)
         sub = {
             "gaussians": GaussianConfig,
@@ -203,10 +207,15 @@ class TrainConfig:
                 continue
             if k in sub:
                 known = {f.name for f in dataclasses.fields(sub[k])}
-                kwargs[k] = sub[k](**{kk: vv for kk, vv in v.items() if kk in known})
+                values = {**ADDED_LATER.get(k, {}), **v}
+                kwargs[k] = sub[k](**{kk: vv for kk, vv in values.items() if kk in known})
             else:
                 kwargs[k] = v
         return cls(**kwargs)
+
+
+ADDED_LATER = {"acoustic": {"reverb_tail": False}}
+"Fields absent from older stored configurations, with the value that the older code used."
 
 
 def field_help(dc: type, name: str) -> str:

@@ -42,6 +42,7 @@ class MaskResult:
     listener_vicinity: np.ndarray  # [k] int64 indices into SceneRenderer.points
     source_vicinity: np.ndarray  # [k] int64 indices into SceneRenderer.points
     theta: float  # degrees, direction to the source, positive = source on the listener's left
+    reverb: np.ndarray | None = None  # [2, F] float32 reverberant gains (left, right); None without a tail
 
 
 @dataclass(frozen=True)
@@ -96,6 +97,7 @@ class SceneRenderer:
             self.config.acoustic,
             self.stft.n_freq,
             vicinity_k=None if fixed_k is None else int(fixed_k),
+            stft=self.stft,
         )
         if model.field is not None:
             model.field.load_state_dict(ckpt["field"])
@@ -163,6 +165,12 @@ class SceneRenderer:
         return self._outline
 
     @property
+    def rt60(self) -> np.ndarray | None:
+        """The scene's learned reverberation time per frequency bin, seconds [F]; None without a reverberant tail."""
+        tail = self._model.binauralizer.reverb
+        return None if tail is None else tail.rt60().detach().cpu().numpy()
+
+    @property
     def sample_rate(self) -> int:
         return int(self.stft.sample_rate)
 
@@ -184,7 +192,7 @@ class SceneRenderer:
         return self._source_cache[1]
 
     def _masks(self, listener, yaw: float, source):
-        """(mixture [F], difference [F], listener vicinity [k], source vicinity [k], theta radians)."""
+        """(PoseMasks, source vicinity [k], theta radians)."""
         listener_n = self.frame.to_normalised(_position(listener, "listener"))
         source_n = self._source_n if source is None else self.frame.to_normalised(_position(source, "source"))
         yaw = float(yaw)
@@ -199,20 +207,24 @@ class SceneRenderer:
                 )
         theta = signed_direction(lis, math.radians(yaw), source_n)
         cached = self._cached_source(source_n)
-        mixture, difference, listener_idx = self._fast.masks(lis, theta, cached)
-        return mixture, difference, listener_idx, cached[1], theta
+        return self._fast.masks(lis, theta, cached), cached[1], theta
 
     def masks(self, listener, yaw: float, source=None) -> MaskResult:
         """Masks for a listener at ``listener`` (world) facing ``yaw`` degrees; ``source`` (world) defaults to the trained one."""
         with self._lock, torch.inference_mode():
-            mixture, difference, lis_idx, src_idx, theta = self._masks(listener, yaw, source)
-            return MaskResult(
-                mixture=mixture.cpu().numpy(),
-                difference=difference.cpu().numpy(),
-                listener_vicinity=lis_idx.cpu().numpy(),
-                source_vicinity=src_idx.cpu().numpy(),
-                theta=math.degrees(theta),
-            )
+            m, src_idx, theta = self._masks(listener, yaw, source)
+            return MaskResult(**self._mask_fields(m, src_idx, theta))
+
+    @staticmethod
+    def _mask_fields(m, src_idx: torch.Tensor, theta: float) -> dict:
+        return dict(
+            mixture=m.mixture.cpu().numpy(),
+            difference=m.difference.cpu().numpy(),
+            listener_vicinity=m.listener_vicinity.cpu().numpy(),
+            source_vicinity=src_idx.cpu().numpy(),
+            theta=math.degrees(theta),
+            reverb=None if m.reverb is None else m.reverb.cpu().numpy(),
+        )
 
     def render(self, listener, yaw: float, mono, source=None) -> RenderResult:
         """Binaural ``[2, T]`` float32 of ``mono [T]`` (any length >= 1) heard at ``listener`` facing ``yaw`` degrees."""
@@ -227,17 +239,13 @@ class SceneRenderer:
         if not np.all(np.isfinite(x)):
             raise ValueError("mono holds NaN or Inf samples")
         with self._lock, torch.inference_mode():
-            mixture, difference, lis_idx, src_idx, theta = self._masks(listener, yaw, source)
+            m, src_idx, theta = self._masks(listener, yaw, source)
             spec = dsp.stft(torch.from_numpy(x).to(self.device)[None], self.stft)  # [1, F, N_t]
-            y = binaural_waveform(spec, mixture[None], difference[None], x.size, self.stft,
-                                  self._model.binauralizer.post_conv)[0]  # [2, T]
+            reverb = None if m.reverb is None else m.reverb[None]  # [1, 2, F]
+            y = binaural_waveform(spec, m.mixture[None], m.difference[None], x.size, self.stft,
+                                  self._model.binauralizer.post_conv, reverb, self._fast.decay)[0]  # [2, T]
             return RenderResult(
-                mixture=mixture.cpu().numpy(),
-                difference=difference.cpu().numpy(),
-                listener_vicinity=lis_idx.cpu().numpy(),
-                source_vicinity=src_idx.cpu().numpy(),
-                theta=math.degrees(theta),
-                binaural=np.ascontiguousarray(y.float().cpu().numpy()),
+                **self._mask_fields(m, src_idx, theta), binaural=np.ascontiguousarray(y.float().cpu().numpy())
             )
 
     def stream(self, listener, yaw: float, source=None):
@@ -254,7 +262,8 @@ class SceneRenderer:
                 "Use render() on the whole signal."
             )
         m = self.masks(listener, yaw, source)
-        return BinauralStream(m.mixture, m.difference, self.stft)
+        decay = None if self._fast.decay is None else self._fast.decay.cpu().numpy()
+        return BinauralStream(m.mixture, m.difference, self.stft, reverb=m.reverb, decay=decay)
 
     def __repr__(self) -> str:
         return f"SceneRenderer({self.name!r}: {len(self._points)} audio points, {self.sample_rate} Hz)"

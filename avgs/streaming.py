@@ -9,6 +9,10 @@ STFT's reflect padding is reproduced at both ends: at the start once 257 samples
 arrived, at the end in :meth:`flush` (the stream's length is known only then). So the
 concatenation of all outputs equals ``render(...).binaural`` to float rounding.
 
+A model with a reverberant tail (:mod:`avgs.acoustics.reverb_tail`) is streamed the same
+way: the tail's power is carried from frame to frame by its one-pole recursion, one
+value per frequency, so blocks still concatenate to the one-shot result.
+
 Output lags input by at most ``latency`` = ``n_fft`` samples (23 ms at 22050 Hz). A
 stream that ends before 257 samples falls back to the one-shot path (constant padding,
 as :func:`avgs.dsp.stft` does for such short inputs).
@@ -38,7 +42,7 @@ def gains_of(mixture, difference) -> np.ndarray:
 class BinauralStream:
     """Binauralise a mono stream block by block with fixed masks ``[F]``."""
 
-    def __init__(self, mixture, difference, stft: STFTConfig = STFT):
+    def __init__(self, mixture, difference, stft: STFTConfig = STFT, reverb=None, decay=None):
         if stft.win_length != stft.n_fft:
             raise ValueError(f"streaming needs win_length == n_fft, got {stft.win_length} and {stft.n_fft}")
         self.stft = stft
@@ -47,6 +51,13 @@ class BinauralStream:
             raise ValueError(f"masks have {self.gains.shape[1]} bins, expected {stft.n_freq} for n_fft {stft.n_fft}")
         self._mixture = np.asarray(mixture, dtype=np.float32).reshape(-1)
         self._difference = np.asarray(difference, dtype=np.float32).reshape(-1)
+        if (reverb is None) != (decay is None):
+            raise ValueError("pass both the reverberant gains [2, F] and the decay [F], or neither")
+        self._reverb = None if reverb is None else np.asarray(reverb, dtype=np.float64).reshape(2, -1)  # [2, F]
+        self._decay = None if decay is None else np.asarray(decay, dtype=np.float64).reshape(-1)  # [F]
+        if self._reverb is not None and not (self._reverb.shape[1] == self._decay.shape[0] == stft.n_freq):
+            raise ValueError(f"reverb {self._reverb.shape} and decay {self._decay.shape} must have {stft.n_freq} bins")
+        self._tail_state = np.zeros(stft.n_freq)  # [F] decayed power of the frames so far
         n, hop = stft.n_fft, stft.hop_length
         self._w = _hann(n)  # [n_fft]
         self._w2 = self._w**2
@@ -87,7 +98,11 @@ class BinauralStream:
         idx = starts[:, None] + np.arange(n)[None, :]  # [m, n_fft]
         frames = self._x[idx] * self._w  # [m, n_fft]
         spec = np.fft.rfft(frames, axis=-1)  # [m, F]
-        out = np.fft.irfft(spec[None] * self.gains[:, None, :], n=n, axis=-1) * self._w  # [2, m, n_fft]
+        if self._reverb is None:
+            ears = spec[None] * self.gains[:, None, :]  # [2, m, F]
+        else:
+            ears = self._with_tail(spec, t0)
+        out = np.fft.irfft(ears, n=n, axis=-1) * self._w  # [2, m, n_fft]
         end = (t1 - 1) * hop + n - self._a0
         if end > self._acc.shape[1]:
             self._acc = np.concatenate([self._acc, np.zeros((2, end - self._acc.shape[1]))], axis=1)
@@ -95,6 +110,23 @@ class BinauralStream:
             s = t * hop - self._a0
             self._acc[:, s : s + n] += out[:, j]
         self._next_frame = t1
+
+    def _with_tail(self, spec: np.ndarray, t0: int) -> np.ndarray:
+        """Ear spectra [2, m, F] of frames spec [m, F]: sqrt((g |S|)^2 + r^2 P) with the source phase."""
+        from avgs.acoustics.reverb_tail import fill_phase
+
+        mag = np.abs(spec)  # [m, F]
+        power = np.empty_like(mag)  # [m, F] tail power P of each frame
+        acc = self._tail_state
+        for j in range(len(mag)):  # P(t) = w (P(t-1) + |S(t-1)|^2)
+            acc = acc * self._decay
+            power[j] = acc
+            acc = acc + mag[j] ** 2
+        self._tail_state = acc
+        ear_mag = np.sqrt((self.gains[:, None, :] * mag) ** 2 + self._reverb[:, None, :] ** 2 * power)  # [2, m, F]
+        fill = fill_phase(mag.shape[1], t0, mag.shape[0]).numpy().T  # [m, F] for frames t0, t0 + 1, ...
+        phase = np.where(mag > 0, spec / np.where(mag > 0, mag, 1.0), fill)
+        return ear_mag * phase[None]
 
     def _envelope(self, j: np.ndarray, n_frames: int | None) -> np.ndarray:
         """sum_t w^2(j - t hop) over frames 0 <= t < n_frames (None: unbounded) at padded indices j."""
@@ -171,7 +203,12 @@ class BinauralStream:
             return np.zeros((2, 0), dtype=np.float32)
         with torch.inference_mode():
             spec = dsp.stft(torch.from_numpy(x.astype(np.float32))[None], self.stft)  # [1, F, N]
+            reverb = decay = None
+            if self._reverb is not None:
+                reverb = torch.from_numpy(self._reverb.astype(np.float32))[None]  # [1, 2, F]
+                decay = torch.from_numpy(self._decay.astype(np.float32))  # [F]
             y = binaural_waveform(
-                spec, torch.from_numpy(self._mixture)[None], torch.from_numpy(self._difference)[None], len(x), self.stft
+                spec, torch.from_numpy(self._mixture)[None], torch.from_numpy(self._difference)[None], len(x), self.stft,
+                reverb=reverb, decay=decay,
             )[0]
         return y.numpy()

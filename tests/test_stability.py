@@ -6,7 +6,9 @@ Energy bound (checked on random poses and signals below): with per-ear gains
 c is at most ``ENERGY_FACTOR * G_c^2`` times the input's. The STFT-multiply-iSTFT is a
 least-squares inverse of a modified STFT, whose norm is at most ``G_c`` in the interior;
 the reflect padding at the two ends can add up to the energy of the padded edge
-samples, hence a factor above 1 for short inputs (it tends to 1 for long ones).
+samples, hence a factor above 1 for short inputs (it tends to 1 for long ones). A
+reverberant tail adds at most ``r^2 w / (1 - w)`` to a bin's power gain (the geometric sum
+of its decay ``w`` per frame), and the bound includes it.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from hypothesis import strategies as st
 
 from avgs.acoustics.points import AudioPoints, alpha_from_features
 from avgs.checkpoint import untrained_checkpoint
-from avgs.config import AcousticConfig, TrainConfig
+from avgs.config import STFT, AcousticConfig, TrainConfig
 from avgs.data.frame import SceneFrame
 from avgs.inference import SceneRenderer
 from avgs.streaming import BinauralStream, gains_of
@@ -60,11 +62,16 @@ def check_output(out, length, capsys=None):
         assert "nan" not in (text.out + text.err).lower()
 
 
-def energy_bound_holds(out, x) -> bool:
-    gains = gains_of(out.mixture, out.difference)  # [2, F]
+def energy_bound_holds(out, x, rt60=None) -> bool:
+    """With a reverberant tail (gains r, RT60 per bin) a bin's power gain is at most
+    ``g^2 + r^2 w / (1 - w)``, w the tail's power decay per frame (its geometric sum)."""
+    gains = gains_of(out.mixture, out.difference) ** 2  # [2, F] power gains
+    if out.reverb is not None:
+        w = 10.0 ** (-6.0 * (STFT.hop_length / STFT.sample_rate) / rt60)  # [F]
+        gains = gains + out.reverb.astype(np.float64) ** 2 * (w / (1.0 - w))
     e_in = float(np.sum(x.astype(np.float64) ** 2))
     e_out = np.sum(out.binaural.astype(np.float64) ** 2, axis=1)  # [2]
-    bound = ENERGY_FACTOR * np.max(np.abs(gains), axis=1) ** 2 * e_in
+    bound = ENERGY_FACTOR * np.max(gains, axis=1) * e_in
     return bool(np.all(e_out <= bound + 1e-9))
 
 
@@ -154,14 +161,15 @@ def test_full_scale_and_clipped_input(renderer, kind, capsys):
         x = np.clip(3.0 * np.sin(2 * np.pi * 440 * t), -1, 1).astype(np.float32)  # hard-clipped sine
     out = renderer.render((1.5, 2.5, 1.6), -60.0, x)
     check_output(out, len(x), capsys)
-    assert energy_bound_holds(out, x)
+    assert energy_bound_holds(out, x, renderer.rt60)
 
 
 def test_dc_input_gives_constant_output_away_from_the_ends(renderer, capsys):
-    x = np.full(SR, 0.5, dtype=np.float32)
+    x = np.full(3 * SR, 0.5, dtype=np.float32)
     out = renderer.render((3.0, 1.0, 1.6), 20.0, x)
-    check_output(out, SR, capsys)
-    inner = out.binaural[:, 1024:-1024]  # identical frames -> identical overlap-added output
+    check_output(out, 3 * SR, capsys)
+    # identical frames -> identical overlap-added output, once the tail has built up (2 s)
+    inner = out.binaural[:, 2 * SR : -1024]
     assert np.allclose(inner, inner[:, :1], rtol=1e-4, atol=1e-6)
 
 
@@ -174,7 +182,7 @@ def test_pure_tone_keeps_its_frequency(renderer, capsys):
         spectrum = np.abs(np.fft.rfft(ch * np.hanning(SR)))
         if spectrum.max() > 1e-6:
             assert abs(np.argmax(spectrum) * SR / SR - f0) < 2.0  # peak at f0 (1 Hz bins)
-    assert energy_bound_holds(out, x)
+    assert energy_bound_holds(out, x, renderer.rt60)
 
 
 @pytest.mark.parametrize("length", [1, 2, 3, 100, 255, 256, 257, 511])
@@ -182,7 +190,7 @@ def test_input_shorter_than_one_stft_frame(renderer, length, capsys):
     x = noise(length, seed=length)
     out = renderer.render((2.0, 2.0, 1.6), 0.0, x)
     check_output(out, length, capsys)
-    assert energy_bound_holds(out, x)
+    assert energy_bound_holds(out, x, renderer.rt60)
     stream = renderer.stream((2.0, 2.0, 1.6), 0.0)
     y = np.concatenate([stream.process(x[i : i + 50]) for i in range(0, length, 50)] + [stream.flush()], axis=1)
     assert np.allclose(y, out.binaural, atol=1e-5)
@@ -282,7 +290,7 @@ def test_random_poses_keep_energy_within_the_bound(renderer, x, y, z, yaw, lengt
     sig = noise(length, seed) * np.float32(level)
     out = renderer.render((x, y, z), yaw, sig)
     check_output(out, length)
-    assert energy_bound_holds(out, sig)
+    assert energy_bound_holds(out, sig, renderer.rt60)
     assert -180.0 <= out.theta <= 180.0
 
 

@@ -11,6 +11,10 @@ Per listener pose and for each of the F = 257 frequency bins it predicts a mixtu
     e   = direction feature of theta / (1.01 pi)
     g   = MLP_diff(h, e) + h                             4 x (Linear + ReLU), residual
     m_d = 2 sigmoid(Linear(g)) - 1                       in (-1, 1)
+    r   = softplus(Linear(g))                            reverberant gains per ear (optional)
+
+The reverberant gains ``r [B, 2, F]`` exist only with ``reverb_tail`` (our addition, see
+:mod:`avgs.acoustics.reverb_tail`); the module then also holds the scene's learned RT60.
 
 The frequency index is mapped linearly onto [-0.99, 0.99] before encoding. Positional
 encodings use 10 log-spaced frequencies up to 2^9 (:mod:`avgs.acoustics.encodings`).
@@ -25,12 +29,14 @@ theta concatenated with the mixture feature. Default chosen by measurement, see
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import torch
 from torch import nn
 
 from avgs.acoustics.encodings import encoded_dim, positional_encoding
 from avgs.acoustics.post_conv import PostConv
+from avgs.acoustics.reverb_tail import ReverbTail
 
 THETA_SCALE = 1.0 / (1.01 * math.pi)
 "theta (radians, in (-pi, pi]) times this lies strictly inside (-1, 1)."
@@ -60,6 +66,14 @@ class CircularEmbedding(nn.Module):
         return (1.0 - w) * self.table[i0] + w * self.table[i1]
 
 
+class BinauralMasks(NamedTuple):
+    """What B predicts for a batch of poses."""
+
+    mixture: torch.Tensor  # [B, F] >= 0 (relu) or in (0, 1) (sigmoid)
+    difference: torch.Tensor  # [B, F] in (-1, 1)
+    reverb: torch.Tensor | None  # [B, 2, F] >= 0, or None without a reverberant tail
+
+
 def _linear_relu_stack(width: int, n: int, in_dim: int | None = None) -> nn.ModuleList:
     dims = [in_dim or width] + [width] * n
     return nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims, dims[1:]))
@@ -79,6 +93,8 @@ class Binauralizer(nn.Module):
         direction_embedding: int = 180,
         mlp_layers: int = 4,
         post_conv: bool = False,
+        reverb_tail: bool = False,
+        hop_seconds: float = 128 / 22050,
     ):
         super().__init__()
         if mixture_activation not in ("relu", "sigmoid"):
@@ -97,6 +113,11 @@ class Binauralizer(nn.Module):
         self.context_proj = nn.Linear(context_dim, width) if context_dim else None
         self.mix_mlp = _linear_relu_stack(width, mlp_layers)
         self.mix_head = nn.Linear(width, 1)
+        # Every bin starts at gain 0.5 and receives gradient. With the default init a relu
+        # mixture started dead (m_m = 0, no gradient) in 5-80 % of the bins, depending on
+        # the seed, and such bins could stay silent for the whole run.
+        nn.init.zeros_(self.mix_head.weight)
+        nn.init.constant_(self.mix_head.bias, 0.5 if mixture_activation == "relu" else 0.0)
         if direction_encoding == "embedding":
             self.direction = CircularEmbedding(direction_embedding, width)
             self.diff_mlp = _linear_relu_stack(width, mlp_layers)
@@ -105,12 +126,13 @@ class Binauralizer(nn.Module):
             self.diff_mlp = _linear_relu_stack(width, mlp_layers, in_dim=width + encoded_dim(1, pe_frequencies))
         self.diff_head = nn.Linear(width, 1)
         self.post_conv = PostConv() if post_conv else None  # applied to magnitudes, see AVGSModel
+        self.reverb = ReverbTail(n_freq, width, hop_seconds) if reverb_tail else None
 
     def forward(
         self, listener_xy: torch.Tensor, theta: torch.Tensor, context: torch.Tensor | None = None
-    ) -> tuple[torch.Tensor, torch.Tensor]:
+    ) -> BinauralMasks:
         """listener_xy: [B, 2] normalised; theta: [B] radians (positive = source on the left);
-        context: [B, C] or None -> (m_m [B, F], m_d [B, F])."""
+        context: [B, C] or None -> :class:`BinauralMasks` (m_m [B, F], m_d [B, F], r [B, 2, F] or None)."""
         B, F = listener_xy.shape[0], self.n_freq
         pos = positional_encoding(listener_xy, self.pe_frequencies)  # [B, 42]
         freq = positional_encoding(self.freq_query, self.pe_frequencies)  # [F, 21]
@@ -140,4 +162,5 @@ class Binauralizer(nn.Module):
                 g = torch.relu(layer(g))
         g = g + h  # [B, F, W] residual
         difference = 2.0 * torch.sigmoid(self.diff_head(g)[..., 0]) - 1.0  # [B, F]
-        return mixture, difference
+        reverb = self.reverb.gains(g) if self.reverb is not None else None  # [B, 2, F]
+        return BinauralMasks(mixture, difference, reverb)

@@ -25,6 +25,7 @@ float16 are for measurement: on CPUs without native support they are slower).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -33,6 +34,15 @@ from torch import nn
 from avgs.acoustics.binauralizer import THETA_SCALE
 from avgs.acoustics.encodings import positional_encoding
 from avgs.acoustics.field import DIRECTION_EPS
+
+
+class PoseMasks(NamedTuple):
+    """B's output for one pose, and the listener's vicinity."""
+
+    mixture: torch.Tensor  # [F]
+    difference: torch.Tensor  # [F] in (-1, 1)
+    listener_vicinity: torch.Tensor  # [k] int64, unordered
+    reverb: torch.Tensor | None  # [2, F] reverberant gains, None without a tail
 
 
 def _linears(seq: nn.Module) -> list[nn.Linear]:
@@ -97,6 +107,9 @@ class FastMasks:
             diff = diff[1:]
         self._diff = diff
         self._diff_head = (b.diff_head.weight.T.contiguous().to(dtype), b.diff_head.bias.to(dtype))
+        tail = b.reverb
+        self._reverb_head = None if tail is None else (tail.head.weight.T.contiguous().to(dtype), tail.head.bias.to(dtype))
+        self.decay = None if tail is None else tail.decay().detach().float()  # [F] tail power decay per frame
         F = self.n_freq
         self._q = torch.empty(F, W, device=device, dtype=dtype)  # work buffers [F, W]
         self._h = torch.empty(F, W, device=device, dtype=dtype)
@@ -132,8 +145,8 @@ class FastMasks:
         W, b = self._last
         return torch.addmv(b, W.T, h.mean(0))  # [c]: the last layer applied to the mean
 
-    def binauralize(self, listener_xy, theta: float, context: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
-        """(m_m [F], m_d [F]) for a listener at ``listener_xy`` (2 floats), ``theta`` radians."""
+    def binauralize(self, listener_xy, theta: float, context: torch.Tensor | None):
+        """(m_m [F], m_d [F], r [2, F] or None) for a listener at ``listener_xy`` (2 floats), ``theta`` radians."""
         xy = torch.tensor([[float(listener_xy[0]), float(listener_xy[1])]], device=self.device, dtype=self.dtype)
         row = positional_encoding(xy, self.pe)[0] @ self._Wq_pos  # [W]
         q = torch.add(self._q_freq, row, out=self._q).relu_()  # [F, W] = relu(query_proj(PE(xy) (+) PE(f)))
@@ -165,7 +178,11 @@ class FastMasks:
         g = g + h  # [F, W] residual
         Wd, bd = self._diff_head
         difference = torch.addmm(bd, g, Wd)[:, 0].sigmoid().mul_(2.0).sub_(1.0)  # [F] in (-1, 1)
-        return mixture.float(), difference.float()
+        reverb = None
+        if self._reverb_head is not None:
+            Wr, br = self._reverb_head
+            reverb = torch.nn.functional.softplus(torch.addmm(br, g, Wr)).T.float()  # [2, F]
+        return mixture.float(), difference.float(), reverb
 
     # -- whole poses -------------------------------------------------------------------
 
@@ -176,16 +193,16 @@ class FastMasks:
         return (self.context(source, idx) if self.use_context else None), idx
 
     @torch.no_grad()
-    def masks(self, listener, theta: float, cached_source: tuple) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(m_m [F], m_d [F], listener vicinity [k]) for ``listener`` (3 floats) and ``theta`` radians."""
+    def masks(self, listener, theta: float, cached_source: tuple) -> "PoseMasks":
+        """:class:`PoseMasks` for ``listener`` (3 floats) and ``theta`` radians."""
         idx = self.vicinity(listener)
         context = None
         if self.use_context:
             c_s = cached_source[0]
             c_l = self.context(listener, idx)
             context = torch.cat([c_s, c_l])  # [2c] = C_S (+) C_L
-        mixture, difference = self.binauralize(listener[:2], theta, context)
-        return mixture, difference, idx
+        mixture, difference, reverb = self.binauralize(listener[:2], theta, context)
+        return PoseMasks(mixture, difference, idx, reverb)
 
 
 def signed_direction(listener, yaw: float, source) -> float:

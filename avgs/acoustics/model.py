@@ -14,6 +14,7 @@ from torch import nn
 from avgs.acoustics.binauralizer import Binauralizer
 from avgs.acoustics.field import AcousticField
 from avgs.acoustics.points import AudioPoints
+from avgs.acoustics.reverb_tail import ear_magnitudes, fill_phase, tail_power
 from avgs.acoustics.vicinity import nearest_indices, vicinity_size
 from avgs.config import STFT, AcousticConfig
 
@@ -37,6 +38,7 @@ class Masks:
     difference: torch.Tensor  # [B, F] in (-1, 1)
     listener_vicinity: torch.Tensor  # [B, k_L] int64
     source_vicinity: torch.Tensor  # [B, k_S] or [k_S] int64
+    reverb: torch.Tensor | None = None  # [B, 2, F] reverberant gains, None without a tail
 
 
 def apply_masks(mono_mag: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor):
@@ -44,9 +46,7 @@ def apply_masks(mono_mag: torch.Tensor, mixture: torch.Tensor, difference: torch
 
     mono_mag: [B, F, N_t]; masks: [B, F] -> three [B, F, N_t].
     """
-    s_m = mono_mag * mixture[..., None]
-    s_d = s_m * difference[..., None]
-    return s_m, s_m + s_d, s_m - s_d
+    return ear_magnitudes(mono_mag, mixture, difference)
 
 
 class AVGSModel(nn.Module):
@@ -58,6 +58,7 @@ class AVGSModel(nn.Module):
         cfg: AcousticConfig | None = None,
         n_freq: int = STFT.n_freq,
         vicinity_k: int | None = None,
+        stft=STFT,
     ):
         super().__init__()
         self.cfg = cfg = cfg or AcousticConfig()
@@ -80,6 +81,8 @@ class AVGSModel(nn.Module):
             direction_encoding=cfg.direction_encoding,
             direction_embedding=cfg.direction_embedding,
             post_conv=cfg.post_conv,
+            reverb_tail=cfg.reverb_tail,
+            hop_seconds=stft.hop_length / stft.sample_rate,
         )
 
     # -- vicinity and context ------------------------------------------------------------
@@ -129,13 +132,15 @@ class AVGSModel(nn.Module):
         if self.field is not None:
             c_l = self.context_at(listener, listener_idx)  # [B, c]
             context = torch.cat([c_s[None].expand(B, -1), c_l], dim=-1)  # [B, 2c] = C_S (+) C_L
-        mixture, difference = self.binauralizer(listener[:, :2], theta, context)
-        return Masks(mixture, difference, listener_idx, source_idx)
+        out = self.binauralizer(listener[:, :2], theta, context)
+        return Masks(out.mixture, out.difference, listener_idx, source_idx, out.reverb)
 
     def forward(self, listener: torch.Tensor, theta: torch.Tensor, source: torch.Tensor, mono_mag: torch.Tensor):
         """Predicted magnitudes: (s_m, s_l, s_r) each [B, F, N_t], and the :class:`Masks`."""
         m = self.masks(listener, theta, source)
-        s_m, s_l, s_r = apply_masks(mono_mag, m.mixture, m.difference)
+        tail = self.binauralizer.reverb
+        power = tail_power(mono_mag, tail.decay()) if tail is not None else None  # [B, F, N_t]
+        s_m, s_l, s_r = ear_magnitudes(mono_mag, m.mixture, m.difference, m.reverb, power)
         post = self.binauralizer.post_conv
         if post is not None:
             s_l, s_r = post(mono_mag, m.mixture, m.difference, s_l, s_r)
@@ -143,24 +148,36 @@ class AVGSModel(nn.Module):
 
 
 def binaural_waveform(
-    mono_stft: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor, length: int, stft=STFT, post_conv=None
+    mono_stft: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor, length: int, stft=STFT, post_conv=None,
+    reverb: torch.Tensor | None = None, decay: torch.Tensor | None = None,
 ):
-    """iSTFT of the masked magnitudes with the source phase.
+    """iSTFT of the predicted ear magnitudes with the source phase.
 
     mono_stft: [B, F, N_t] complex; masks [B, F] -> [B, 2, length] (channel 0 = left).
     ``post_conv``: the binauralizer's :class:`~avgs.acoustics.post_conv.PostConv`, or None.
+    ``reverb`` [B, 2, F] gains and ``decay`` [F] (:meth:`ReverbTail.decay
+    <avgs.acoustics.reverb_tail.ReverbTail.decay>`): the reverberant tail, or both None.
     """
     from avgs import dsp
 
-    # |S| m e^{i phase(S)} = S m: the masks scale the source spectrum, keeping its phase.
-    gain_l = mixture * (1.0 + difference)  # [B, F]
-    gain_r = mixture * (1.0 - difference)  # [B, F]
-    if post_conv is None:
+    if (reverb is None) != (decay is None):
+        raise ValueError("binaural_waveform: pass both the reverberant gains and the decay, or neither")
+    if post_conv is None and reverb is None:
+        # |S| m e^{i phase(S)} = S m: the masks scale the source spectrum, keeping its phase.
+        gain_l = mixture * (1.0 + difference)  # [B, F]
+        gain_r = mixture * (1.0 - difference)  # [B, F]
         spec = mono_stft[:, None] * torch.stack([gain_l, gain_r], dim=1)[..., None]  # [B, 2, F, N_t]
         return dsp.istft(spec, length, stft)
     mag = mono_stft.abs()  # [B, F, N_t]
-    s_l, s_r = post_conv(mag, mixture, difference, mag * gain_l[..., None], mag * gain_r[..., None])
-    # The source phase; a silent bin (|S| = 0) gets phase 0 rather than 0/0.
-    phase = torch.where(mag > 0, mono_stft / mag.clamp_min(torch.finfo(mag.dtype).tiny), torch.ones_like(mono_stft))
+    power = tail_power(mag, decay) if decay is not None else None  # [B, F, N_t]
+    _, s_l, s_r = ear_magnitudes(mag, mixture, difference, reverb, power)
+    if post_conv is not None:
+        s_l, s_r = post_conv(mag, mixture, difference, s_l, s_r)
+    # The source phase. A silent bin (|S| = 0) has none: phase 0 for the conv head's output,
+    # a fixed pseudo-random phase for a reverberant tail ringing on after the source stops.
+    silent = torch.ones_like(mono_stft)
+    if decay is not None:
+        silent = fill_phase(mag.shape[-2], 0, mag.shape[-1], mag.device).to(mono_stft.dtype).expand_as(mono_stft)
+    phase = torch.where(mag > 0, mono_stft / mag.clamp_min(torch.finfo(mag.dtype).tiny), silent)
     spec = torch.stack([s_l, s_r], dim=1) * phase[:, None]  # [B, 2, F, N_t]
     return dsp.istft(spec, length, stft)

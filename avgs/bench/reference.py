@@ -20,6 +20,12 @@ from avgs import dsp
 from avgs.acoustics.model import binaural_waveform, signed_direction
 
 
+def _decay(model):
+    """The tail's power decay per frame [F], or None for a mask-only model."""
+    tail = model.binauralizer.reverb
+    return None if tail is None else tail.decay().detach()
+
+
 def _inputs(renderer, listener, yaw: float):
     dev = renderer.device
     lis = torch.tensor(renderer.frame.to_normalised(np.asarray(listener, dtype=np.float64))[None], dtype=torch.float32, device=dev)
@@ -45,7 +51,8 @@ class PreviousPath:
             lis, src, theta = _inputs(self.r, listener, yaw)
             m = self.model.masks(lis, theta, src, cached_source=self.cached)
             spec = dsp.stft(torch.from_numpy(mono).to(self.r.device)[None], self.r.stft)
-            y = binaural_waveform(spec, m.mixture, m.difference, mono.size, self.r.stft)[0]
+            y = binaural_waveform(spec, m.mixture, m.difference, mono.size, self.r.stft,
+                                  reverb=m.reverb, decay=_decay(self.model))[0]
             return y.float().cpu().numpy()
 
 
@@ -76,9 +83,10 @@ class NaivePath:
     def render(self, listener, yaw: float, mono: np.ndarray) -> np.ndarray:
         with torch.enable_grad():
             lis, src, theta = _inputs(self.r, listener, yaw)
-            mixture, difference = self._masks(lis, theta, src)
+            out = self._masks(lis, theta, src)
         with torch.no_grad():
-            mixture, difference = mixture.detach(), difference.detach()
+            reverb = None if out.reverb is None else out.reverb.detach()
             spec = dsp.stft(torch.from_numpy(mono).to(self.r.device)[None], self.r.stft)
-            y = binaural_waveform(spec, mixture, difference, mono.size, self.r.stft)[0]
+            y = binaural_waveform(spec, out.mixture.detach(), out.difference.detach(), mono.size, self.r.stft,
+                                  reverb=reverb, decay=_decay(self.model))[0]
             return y.detach().float().cpu().numpy()

@@ -48,10 +48,31 @@ def summary(path) -> dict:
             "point_management": cfg.points.enabled,
             "mixture_activation": cfg.acoustic.mixture_activation,
             "direction_encoding": cfg.acoustic.direction_encoding,
+            "reverb_tail": cfg.acoustic.reverb_tail,
             "seed": cfg.seed,
         },
+        "rt60_s": octave_rt60(ckpt["binauralizer"].get("reverb.log_rt60"), stft),
         "metrics": {k: v for k, v in dict(ckpt.get("metrics") or {}).items()},
     }
+
+
+OCTAVE_BANDS_HZ = (125, 250, 500, 1000, 2000, 4000, 8000)
+
+
+def octave_rt60(log_rt60, stft) -> dict[str, float] | None:
+    """The learned RT60 per octave band (median over the band's bins), seconds; None without a tail."""
+    if log_rt60 is None:
+        return None
+    import numpy as np
+
+    rt60 = np.exp(log_rt60.double().numpy())  # [F]
+    freqs = np.arange(len(rt60)) * stft.sample_rate / stft.n_fft
+    bands = {}
+    for fc in OCTAVE_BANDS_HZ:
+        inside = (freqs >= fc / np.sqrt(2)) & (freqs < fc * np.sqrt(2))
+        if inside.any():
+            bands[str(fc)] = round(float(np.median(rt60[inside])), 4)
+    return bands
 
 
 def run(args: argparse.Namespace) -> int:
@@ -67,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"  {info['sample_rate']} Hz, n_fft {info['stft']['n_fft']}, hop {info['stft']['hop_length']}")
     t = info["training"]
     print("  trained " + ", ".join(f"{k} {v}" for k, v in t.items()) + f"; at iteration {info['iteration']}")
+    if info["rt60_s"]:
+        print("  learned RT60 " + ", ".join(f"{fc} Hz {v:.2f} s" for fc, v in info["rt60_s"].items()))
     if info["metrics"]:
         print("  final " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in info["metrics"].items()))
     return 0

@@ -33,6 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--post-conv", dest="post_conv", action="store_true", default=None,
                         help=field_help(AcousticConfig, "post_conv"))
     parser.add_argument("--no-post-conv", dest="post_conv", action="store_false")
+    parser.add_argument("--reverb-tail", dest="reverb_tail", action="store_true", default=None,
+                        help=field_help(AcousticConfig, "reverb_tail"))
+    parser.add_argument("--no-reverb-tail", dest="reverb_tail", action="store_false",
+                        help="B with the paper's time-invariant masks only (no reverberant tail).")
     parser.add_argument("--no-gaussians", action="store_true", help="Do not store G in the checkpoint.")
     parser.add_argument("--device", choices=("cpu", "cuda"), help=field_help(TrainConfig, "device"))
     parser.add_argument("--seed", type=int, help=field_help(TrainConfig, "seed"))
@@ -55,6 +59,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "vicinity_percentile": (cfg.acoustic, "vicinity_percentile"),
         "alpha_init": (cfg.acoustic, "alpha_init"),
         "post_conv": (cfg.acoustic, "post_conv"),
+        "reverb_tail": (cfg.acoustic, "reverb_tail"),
         "audio_points": (cfg.points, "initial_points"),
         "init": (cfg, "init"),
         "device": (cfg, "device"),

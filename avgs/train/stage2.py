@@ -108,8 +108,9 @@ class Stage2Trainer:
             sl = slice(i, i + chunk)
             m = self.model.masks(data.listener[sl].to(self.device), data.theta[sl].to(self.device), source, cached)
             spec = data.mono_stft[sl].to(self.device)
+            b = self.model.binauralizer
             out.append(binaural_waveform(spec, m.mixture, m.difference, data.mono.shape[-1], self.cfg.stft,
-                                         self.model.binauralizer.post_conv).cpu())
+                                         b.post_conv, m.reverb, None if b.reverb is None else b.reverb.decay()).cpu())
         return torch.cat(out)
 
     def evaluate(self, data) -> dict:
