@@ -19,11 +19,16 @@ The reverberant gains ``r [B, 2, F]`` exist only with ``reverb_tail`` (our addit
 The frequency index is mapped linearly onto [-0.99, 0.99] before encoding. Positional
 encodings use 10 log-spaced frequencies up to 2^9 (:mod:`avgs.acoustics.encodings`).
 
-Direction feature (``direction_encoding``): ``"embedding"`` is AV-NeRF's code, a learned,
+Direction feature (``direction_encoding``): ``"embedding"`` follows AV-NeRF's code, a learned,
 circularly interpolated table of ``direction_embedding`` vectors added after each layer of
-the difference MLP; ``"fourier"`` is the paper's text, a high-frequency transform of
-theta concatenated with the mixture feature. Default chosen by measurement, see
+the difference MLP (AV-NeRF's table is coarser: 4 entries, with its own vector per layer);
+``"fourier"`` is the paper's text, a high-frequency transform of theta concatenated with
+the mixture feature. Default chosen by measurement, see
 :data:`avgs.config.AcousticConfig.direction_encoding`.
+
+AV-NeRF leaves ``m_m`` linear and applies the ReLU to the ear magnitudes, so a bin with a
+negative mask still gets gradient from the mixture loss; with ``relu`` on the mask itself,
+as here, such a bin would get none, hence the mixture head's initialisation at gain 0.5.
 """
 
 from __future__ import annotations
