@@ -22,6 +22,7 @@ Writes are atomic (temp file in the same folder, then ``os.replace``).
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -135,6 +136,13 @@ def untrained_checkpoint(
         config.stft.n_freq,
         stft=config.stft,
     )
+    # Heads that training starts at zero weight (a constant mask) get random weights here,
+    # so that every output of an untrained model depends on the pose, as a trained one's does.
+    b = model.binauralizer
+    with torch.no_grad():
+        for head in [b.mix_head] + ([b.reverb.head] if b.reverb is not None else []):
+            bound = 1.0 / math.sqrt(head.in_features)
+            head.weight.uniform_(-bound, bound)
     return build_checkpoint(
         model,
         frame,

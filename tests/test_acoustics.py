@@ -99,12 +99,18 @@ def test_circular_embedding_meets_itself_at_the_back():
 @pytest.mark.parametrize("activation", ["relu", "sigmoid"])
 def test_binauralizer_mask_shapes_and_ranges(encoding, activation):
     torch.manual_seed(0)
-    b = Binauralizer(context_dim=6, width=16, mixture_activation=activation, direction_encoding=encoding)
-    m_m, m_d = b(torch.rand(3, 2), torch.tensor([-3.1, 0.0, 3.1]), torch.randn(3, 6))
-    assert m_m.shape == m_d.shape == (3, 257)
-    assert (m_m >= 0).all() and (m_d.abs() < 1).all()
+    b = Binauralizer(context_dim=6, width=16, mixture_activation=activation, direction_encoding=encoding,
+                     reverb_tail=True)
+    m_m, m_d, r = b(torch.rand(3, 2), torch.tensor([-3.1, 0.0, 3.1]), torch.randn(3, 6))
+    assert m_m.shape == m_d.shape == (3, 257) and r.shape == (3, 2, 257)
+    assert (m_m >= 0).all() and (m_d.abs() < 1).all() and (r >= 0).all()
+    # every bin starts alive, at gain 0.5 (a dead relu bin would get no gradient)
+    assert torch.allclose(m_m, torch.full_like(m_m, 0.5))
     if activation == "sigmoid":
         assert (m_m <= 1).all()
+    assert b(torch.rand(3, 2), torch.zeros(3), torch.randn(3, 6)).reverb is not None
+    plain = Binauralizer(context_dim=6, width=16, mixture_activation=activation, direction_encoding=encoding)
+    assert plain(torch.rand(3, 2), torch.zeros(3), torch.randn(3, 6)).reverb is None
 
 
 def test_model_end_to_end_shapes_context_and_no_context():
@@ -119,9 +125,9 @@ def test_model_end_to_end_shapes_context_and_no_context():
     assert torch.allclose(s_l + s_r, 2 * s_m, atol=1e-6)
     # The context depends on the audio points: moving alpha changes the masks.
     with torch.no_grad():
-        before = model.masks(torch.zeros(1, 3), torch.zeros(1), torch.ones(3)).mixture.clone()
+        before = model.masks(torch.zeros(1, 3), torch.zeros(1), torch.ones(3)).difference.clone()
         model.points.alpha.add_(1.0)
-        after = model.masks(torch.zeros(1, 3), torch.zeros(1), torch.ones(3)).mixture
+        after = model.masks(torch.zeros(1, 3), torch.zeros(1), torch.ones(3)).difference
     assert not torch.allclose(before, after)
     # The control has no F and ignores the points entirely.
     ctl = AVGSModel(AudioPoints(torch.rand(50, 3), torch.randn(50, 52)), AcousticConfig(use_context=False))

@@ -31,7 +31,7 @@ def test_bench_quick_writes_the_report(tmp_path, capsys):
     for png in ("latency.png", "speed_error.png", "points.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     results = json.loads((out / "results.json").read_text())
-    assert set(results["latency"]["cpu"]["stages"]) == {"vicinity", "field", "binauralizer", "stft", "istft"}
+    assert set(results["latency"]["cpu"]["stages"]) == {"vicinity", "field", "binauralizer", "stft", "synthesis"}
     assert set(results["latency"]["cpu"]["long"]) == {"10", "60"}
     assert {t["stage"] for t in results["training"]} == {1, 2}
     assert (out / "work" / ".gitignore").read_text() == "*\n"  # trained bench models stay out of git

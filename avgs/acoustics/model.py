@@ -176,7 +176,7 @@ def binaural_waveform(
     # The source phase. A silent bin (|S| = 0) has none: phase 0 for the conv head's output,
     # a fixed pseudo-random phase for a reverberant tail ringing on after the source stops.
     silent = torch.ones_like(mono_stft)
-    if decay is not None:
+    if decay is not None and bool((mag == 0).any()):
         silent = fill_phase(mag.shape[-2], 0, mag.shape[-1], mag.device).to(mono_stft.dtype).expand_as(mono_stft)
     phase = torch.where(mag > 0, mono_stft / mag.clamp_min(torch.finfo(mag.dtype).tiny), silent)
     spec = torch.stack([s_l, s_r], dim=1) * phase[:, None]  # [B, 2, F, N_t]

@@ -29,6 +29,7 @@ frame by frame by its one-pole recursion ``P(t) = w (P(t-1) + |S(t-1)|^2)``
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -78,7 +79,7 @@ def tail_power(mono_mag: torch.Tensor, decay: torch.Tensor) -> torch.Tensor:
     # decay^k for k = 1 .. L-1, zero at k = 0 (the direct part is the mask's), as exp(k log w).
     kernel = torch.exp(k * torch.log(decay)[:, None]) * (k > 0)  # [F, L]
     block = max(BLOCK_FRAMES, taps) if n > BLOCK_FRAMES else n
-    size = block + taps  # linear, not circular, convolution of one block
+    size = 1 << (block + taps - 1).bit_length()  # >= block + taps: linear, not circular; a power of 2 is fast
     kernel_spec = torch.fft.rfft(kernel, size)  # [F, size // 2 + 1]
     if block >= n:
         out = torch.fft.irfft(torch.fft.rfft(power, size) * kernel_spec, size)[..., :n]
@@ -140,20 +141,21 @@ class ReverbTail(nn.Module):
         return torch.nn.functional.softplus(self.head(features)).movedim(-1, -2)
 
 
+@functools.lru_cache(maxsize=8)
 def fill_phase(n_freq: int, first_frame: int, n_frames: int, device=None) -> torch.Tensor:
-    """Unit phasors [F, N_t] for bins where the source is exactly silent (its phase undefined).
+    """Unit phasors [F, N_t] (complex64) for bins where the source is exactly silent (its phase undefined).
 
     The tail rings on after the source stops; a constant phase there would make every
     frame a pulse at the frame edge, which the synthesis window erases. A diffuse tail has
     random phase: this is a fixed pseudo-random one, an integer hash of (frequency, frame),
     so one-shot and block-streamed output agree. ``first_frame`` is the absolute index of
-    the first frame.
+    the first frame. Cached (a render of the same length reuses it): do not modify in place.
     """
     f = torch.arange(n_freq, device=device, dtype=torch.int64)[:, None]
     t = torch.arange(first_frame, first_frame + n_frames, device=device, dtype=torch.int64)[None, :]
     h = ((f * 73856093) ^ (t * 19349663)) % 65536  # [F, N_t]
-    angle = h.to(torch.float64) * (2 * math.pi / 65536)
-    return torch.polar(torch.ones_like(angle), angle)  # complex128
+    angle = h.to(torch.float32) * (2 * math.pi / 65536)
+    return torch.polar(torch.ones_like(angle), angle)
 
 
 def ear_magnitudes(mono_mag: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor,

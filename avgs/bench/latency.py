@@ -16,7 +16,7 @@ import torch
 
 from avgs.bench.timing import Stopwatch, Timing, time_calls
 
-STAGES = ("vicinity", "field", "binauralizer", "stft", "istft")
+STAGES = ("vicinity", "field", "binauralizer", "stft", "synthesis")
 
 
 def _sync(device) -> None:
@@ -52,6 +52,7 @@ def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
     """Time the fast path's stages one by one, as :meth:`SceneRenderer.render` runs them."""
     from avgs import dsp
     from avgs.acoustics.fast import signed_direction
+    from avgs.acoustics.model import binaural_waveform
 
     fast = renderer._fast
     dev = renderer.device
@@ -78,10 +79,12 @@ def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
             if fast.use_context:
                 c_l = run("field", lambda: fast.context(lis, idx))
                 ctx = torch.cat([cached[0], c_l])
-            mix, diff = run("binauralizer", lambda: fast.binauralize(lis[:2], theta, ctx))
+            mix, diff, reverb = run("binauralizer", lambda: fast.binauralize(lis[:2], theta, ctx))
             spec = run("stft", lambda: dsp.stft(x.to(dev)[None], renderer.stft))
-            gains = torch.stack([mix * (1 + diff), mix * (1 - diff)])[..., None]  # [2, F, 1]
-            run("istft", lambda: dsp.istft(spec[0][None] * gains, mono.size, renderer.stft).cpu())
+            reverb = None if reverb is None else reverb[None]  # [1, 2, F]
+            # masks (and the reverberant tail, if any) applied, then the inverse STFT
+            run("synthesis", lambda: binaural_waveform(spec, mix[None], diff[None], mono.size, renderer.stft,
+                                                       reverb=reverb, decay=fast.decay).cpu())
     return sw.timings()
 
 

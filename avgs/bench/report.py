@@ -52,7 +52,7 @@ def plot_latency(latency: dict, path: Path) -> Path:
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     ax = axes[0]
-    stages = ("vicinity", "field", "binauralizer", "stft", "istft")
+    stages = ("vicinity", "field", "binauralizer", "stft", "synthesis")
     devices = list(latency)
     left = np.zeros(len(devices))
     for s in stages:
@@ -198,7 +198,7 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
         for dev, d in lat.items():
             rows.append([dev, d["points"], d["k"], _f(d["render"]["median_ms"], "{:.2f}"), _f(d["render"]["p95_ms"], "{:.2f}"),
                          _f(d["masks"]["median_ms"], "{:.2f}")] + [_f(d["stages"].get(s, {}).get("median_ms"), "{:.3f}") for s in
-                                                                   ("vicinity", "field", "binauralizer", "stft", "istft")])
+                                                                   ("vicinity", "field", "binauralizer", "stft", "synthesis")])
         L += _table(["device", "points", "k", "render ms (median)", "p95", "masks only", "vicinity", "field F", "binauralizer B",
                      "STFT", "iSTFT"], rows)
         for dev, d in lat.items():
