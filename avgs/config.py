@@ -127,6 +127,8 @@ class AcousticConfig:
     "Learning rate of the audio point positions X."
     lr_alpha: float = 1e-3
     "Learning rate of the audio-guidance parameters alpha."
+    lr_rt60: float = 1e-2
+    "Learning rate of the tail's log RT60 per frequency (log seconds; warm-up and decay as F and B's)."
     warmup_fraction: float = 0.1
     "Fraction of iterations spent in linear learning-rate warm-up."
     final_lr_fraction: float = 0.01

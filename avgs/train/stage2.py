@@ -37,14 +37,23 @@ class Stage2Trainer:
         self.device = torch.device(device)
         ac = cfg.acoustic
         self.total = int(ac.iterations)
-        networks = [p for m in (model.field, model.binauralizer) if m is not None for p in m.parameters()]
-        self.optimizer = torch.optim.Adam(
-            [
-                {"params": networks, "lr": ac.lr, "name": "networks"},
-                {"params": [model.points.X], "lr": ac.lr_points, "name": "X"},
-                {"params": [model.points.alpha], "lr": ac.lr_alpha, "name": "alpha"},
-            ]
-        )
+        tail = model.binauralizer.reverb
+        rt60 = [] if tail is None else [tail.log_rt60]
+        networks = [
+            p for m in (model.field, model.binauralizer) if m is not None for p in m.parameters()
+            if not any(p is q for q in rt60)
+        ]
+        groups = [
+            {"params": networks, "lr": ac.lr, "name": "networks"},
+            {"params": [model.points.X], "lr": ac.lr_points, "name": "X"},
+            {"params": [model.points.alpha], "lr": ac.lr_alpha, "name": "alpha"},
+        ]
+        if rt60:
+            # RT60 is one number per frequency for the whole scene, in log seconds: at the
+            # networks' rate it could move only about a factor of 2 from its start in a
+            # few thousand steps, and rooms range from 0.05 s to several seconds.
+            groups.append({"params": rt60, "lr": ac.lr_rt60, "name": "rt60"})
+        self.optimizer = torch.optim.Adam(groups)
         self.base_lrs = [g["lr"] for g in self.optimizer.param_groups]
         self.generator = torch.Generator().manual_seed(cfg.seed)  # batch sampling
         self.manager = AudioPointManager(
@@ -62,7 +71,7 @@ class Stage2Trainer:
         ac = self.cfg.acoustic
         f = lr_factor(self.iteration, self.total, ac.warmup_fraction, ac.final_lr_fraction)
         for group, base in zip(self.optimizer.param_groups, self.base_lrs):
-            group["lr"] = base * (f if group.get("name") == "networks" else 1.0)
+            group["lr"] = base * (f if group.get("name") in ("networks", "rt60") else 1.0)
 
     def step(self) -> dict:
         """One iteration on a random batch; returns the losses and point bookkeeping."""
