@@ -200,7 +200,7 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
                          _f(d["masks"]["median_ms"], "{:.2f}")] + [_f(d["stages"].get(s, {}).get("median_ms"), "{:.3f}") for s in
                                                                    ("vicinity", "field", "binauralizer", "stft", "synthesis")])
         L += _table(["device", "points", "k", "render ms (median)", "p95", "masks only", "vicinity", "field F", "binauralizer B",
-                     "STFT", "iSTFT"], rows)
+                     "STFT", "synthesis + iSTFT"], rows)
         for dev, d in lat.items():
             if "render_1_thread" in d:
                 t = d["render_1_thread"]
