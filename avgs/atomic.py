@@ -62,6 +62,16 @@ def write_json(path: str | Path, data, indent: int = 2) -> Path:
     return write_text(path, json.dumps(data, indent=indent) + "\n")
 
 
+def write_wav(path: str | Path, audio, sample_rate: int, make_parents: bool = True) -> Path:
+    """``audio [C, T]`` as a C-channel 32-bit float WAV (channel 0 first)."""
+    import numpy as np
+    import soundfile as sf
+
+    with atomic_path(path, make_parents=make_parents) as tmp:
+        sf.write(str(tmp), np.asarray(audio, dtype=np.float32).T, int(sample_rate), subtype="FLOAT", format="WAV")
+    return Path(path)
+
+
 def torch_save(obj, path: str | Path) -> Path:
     """``torch.save`` to ``path`` atomically (flushed to disk before the rename)."""
     import torch

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from avgs import atomic, metrics
+from avgs import metrics
 from avgs.baselines import BASELINES
 from avgs.data.rwavs import AudioClip, RWAVSScene, is_scene_dir
 
@@ -232,8 +232,3 @@ def format_report(report: dict) -> str:
         lines.append(row(f"env   {env}", lambda m, e=env: m["environments"].get(e)))
     lines.append(row("overall", lambda m: m["overall"]))
     return "\n".join(lines)
-
-
-def write_json_atomic(path: str | Path, data) -> None:
-    """Write ``data`` as JSON to ``path`` through a temporary file and ``os.replace``."""
-    atomic.write_json(path, data)

@@ -57,7 +57,14 @@ class BinauralStream:
         self._decay = None if decay is None else np.asarray(decay, dtype=np.float64).reshape(-1)  # [F]
         if self._reverb is not None and not (self._reverb.shape[1] == self._decay.shape[0] == stft.n_freq):
             raise ValueError(f"reverb {self._reverb.shape} and decay {self._decay.shape} must have {stft.n_freq} bins")
-        self._tail_state = np.zeros(stft.n_freq)  # [F] decayed power of the frames so far
+        self._tail_state = None  # [1, F] float64 tensor: decayed power of the frames so far
+        if self._reverb is not None:  # float64 tensors for the tail's shared torch implementation
+            import torch
+
+            self._mixture_t = torch.from_numpy(self._mixture.astype(np.float64))[None]  # [1, F]
+            self._difference_t = torch.from_numpy(self._difference.astype(np.float64))[None]  # [1, F]
+            self._reverb_t = torch.from_numpy(self._reverb)[None]  # [1, 2, F]
+            self._decay_t = torch.from_numpy(self._decay)  # [F]
         n, hop = stft.n_fft, stft.hop_length
         self._w = _hann(n)  # [n_fft]
         self._w2 = self._w**2
@@ -113,17 +120,16 @@ class BinauralStream:
 
     def _with_tail(self, spec: np.ndarray, t0: int) -> np.ndarray:
         """Ear spectra [2, m, F] of frames spec [m, F]: sqrt((g |S|)^2 + r^2 P) with the source phase."""
-        from avgs.acoustics.reverb_tail import fill_phase
+        import torch
+
+        from avgs.acoustics.reverb_tail import ear_magnitudes, fill_phase, tail_power_recursive
 
         mag = np.abs(spec)  # [m, F]
-        power = np.empty_like(mag)  # [m, F] tail power P of each frame
-        acc = self._tail_state
-        for j in range(len(mag)):  # P(t) = w (P(t-1) + |S(t-1)|^2)
-            acc = acc * self._decay
-            power[j] = acc
-            acc = acc + mag[j] ** 2
-        self._tail_state = acc
-        ear_mag = np.sqrt((self.gains[:, None, :] * mag) ** 2 + self._reverb[:, None, :] ** 2 * power)  # [2, m, F]
+        mag_t = torch.from_numpy(np.ascontiguousarray(mag.T))[None]  # [1, F, m] float64
+        # P(t) = w (P(t-1) + |S(t-1)|^2), carried from the previous block in self._tail_state
+        power, self._tail_state = tail_power_recursive(mag_t, self._decay_t, self._tail_state)
+        _, s_l, s_r = ear_magnitudes(mag_t, self._mixture_t, self._difference_t, self._reverb_t, power)
+        ear_mag = torch.cat([s_l, s_r]).numpy().transpose(0, 2, 1)  # [2, m, F]
         fill = fill_phase(mag.shape[1], t0, mag.shape[0]).numpy().T  # [m, F] for frames t0, t0 + 1, ...
         phase = np.where(mag > 0, spec / np.where(mag > 0, mag, 1.0), fill)
         return ear_mag * phase[None]

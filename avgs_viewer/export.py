@@ -7,35 +7,23 @@ is written atomically (a temporary file in the target folder, then ``os.replace`
 
 from __future__ import annotations
 
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
-from avgs.atomic import atomic_path as _atomic_path
-
-
-@contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (same suffix); moved onto ``path`` on success."""
-    with _atomic_path(path, make_parents=False) as tmp:
-        yield tmp
+from avgs import atomic
 
 
 def write_wav(path: str | Path, binaural: np.ndarray, sample_rate: int) -> Path:
     """Write binaural [2, T] audio as a 2-channel float WAV (left first)."""
-    import soundfile as sf
-
     binaural = np.asarray(binaural, dtype=np.float32)
     if binaural.ndim != 2 or binaural.shape[0] != 2:
         raise ValueError(f"binaural audio must be [2, T], got shape {binaural.shape}")
     path = Path(path)
     if path.suffix.lower() != ".wav":
         raise ValueError(f"audio export must be a .wav file, got {path}")
-    with atomic_path(path) as tmp:
-        sf.write(str(tmp), binaural.T, int(sample_rate), subtype="FLOAT", format="WAV")
-    return path
+    return atomic.write_wav(path, binaural, sample_rate, make_parents=False)
 
 
 def write_screenshot(plotter: Any, path: str | Path, scale: int = 1, transparent: bool = False) -> Path:
@@ -46,7 +34,7 @@ def write_screenshot(plotter: Any, path: str | Path, scale: int = 1, transparent
     scale = int(scale)
     if not 1 <= scale <= 8:
         raise ValueError(f"screenshot scale must be an integer from 1 to 8, got {scale}")
-    with atomic_path(path) as tmp:
+    with atomic.atomic_path(path, make_parents=False) as tmp:
         plotter.screenshot(str(tmp), transparent_background=bool(transparent), scale=scale, return_img=False)
     return path
 

@@ -42,6 +42,11 @@ MIN_RT60 = 1e-3
 "Smallest representable RT60 in seconds (the tail vanishes well before one frame)."
 
 
+def rt60_seconds(log_rt60: torch.Tensor) -> torch.Tensor:
+    """RT60 in seconds from the stored parameter ``log_rt60`` (log seconds), floored at ``MIN_RT60``."""
+    return log_rt60.exp().clamp_min(MIN_RT60)
+
+
 def decay_per_frame(rt60: torch.Tensor, hop_seconds: float) -> torch.Tensor:
     """Power decay factor per STFT frame ``w = 10^(-6 hop / RT60)`` in (0, 1), for RT60 [F] in seconds."""
     return torch.exp(-LN_1E6 * hop_seconds / rt60)
@@ -130,7 +135,7 @@ class ReverbTail(nn.Module):
 
     def rt60(self) -> torch.Tensor:
         """Reverberation time per frequency bin, seconds [F]."""
-        return self.log_rt60.exp().clamp_min(MIN_RT60)
+        return rt60_seconds(self.log_rt60)
 
     def decay(self) -> torch.Tensor:
         """Power decay per STFT frame [F] in (0, 1)."""

@@ -29,6 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from avgs import evaluate
+    from avgs.atomic import write_json
 
     specs = list(dict.fromkeys(args.method or BASELINES))
     scene_dirs = evaluate.find_scenes(args.data_root, args.scene)
@@ -36,6 +37,6 @@ def run(args: argparse.Namespace) -> int:
     report = evaluate.evaluate(methods, scene_dirs, split=args.split, progress=not args.no_progress)
     print(evaluate.format_report(report))
     if args.json:
-        evaluate.write_json_atomic(args.json, report)
+        write_json(args.json, report)
         print(f"wrote {args.json}")
     return 0

@@ -65,7 +65,9 @@ def octave_rt60(log_rt60, stft) -> dict[str, float] | None:
         return None
     import numpy as np
 
-    rt60 = np.exp(log_rt60.double().numpy())  # [F]
+    from avgs.acoustics.reverb_tail import rt60_seconds
+
+    rt60 = rt60_seconds(log_rt60.double()).numpy()  # [F]
     freqs = np.arange(len(rt60)) * stft.sample_rate / stft.n_fft
     bands = {}
     for fc in OCTAVE_BANDS_HZ:

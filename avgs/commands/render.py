@@ -43,23 +43,14 @@ def read_mono(path: str | Path, sample_rate: int):
     return x
 
 
-def write_wav_atomic(path: str | Path, audio, sample_rate: int) -> None:
-    """``audio [C, T]`` as a float WAV, written to a temp file then renamed."""
-    import soundfile as sf
-
-    from avgs.atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        sf.write(tmp, audio.T, sample_rate, subtype="FLOAT", format="WAV")
-
-
 def run(args: argparse.Namespace) -> int:
+    from avgs.atomic import write_wav
     from avgs.inference import SceneRenderer
 
     renderer = SceneRenderer.load(args.checkpoint, device=args.device)
     mono = read_mono(args.input, renderer.sample_rate)
     out = renderer.render(args.listener, args.yaw, mono, source=args.source)
-    write_wav_atomic(args.output, out.binaural, renderer.sample_rate)
+    write_wav(args.output, out.binaural, renderer.sample_rate)
     side = "left" if out.theta > 0 else "right" if out.theta < 0 else "ahead"
     print(f"wrote {args.output} ({out.binaural.shape[1]} samples, source {abs(out.theta):.0f} deg to the {side})")
     return 0
