@@ -98,7 +98,9 @@ class AcousticConfig:
     binauralizer_width: int = 128
     "Width of the binauralizer MLPs (128 for RWAVS, 256 for RIR)."
     pe_frequencies: int = 10
-    "Positional-encoding frequencies, log-spaced up to 2^(n-1)."
+    "Positional-encoding frequencies of the frequency query (and of Fourier direction features), log-spaced up to 2^(n-1)."
+    position_frequencies: int = 10
+    "Positional-encoding frequencies of the listener's (x, y), log-spaced up to 2^(n-1) (AV-NeRF: 10)."
     direction_embedding: int = 180
     "Number of learned, circularly interpolated direction embeddings (AV-NeRF)."
     # Measured (free-field test scene, 48 train poses, 1500 iterations; val MAG / ENV):
@@ -107,8 +109,10 @@ class AcousticConfig:
     # (the two clips are peak-normalised separately); fourier wins clearly.
     mixture_activation: Literal["relu", "sigmoid"] = "relu"
     "Last activation of the mixture mask: AV-NeRF's unbounded relu or the paper's sigmoid."
-    direction_encoding: Literal["embedding", "fourier"] = "fourier"
-    "Direction feature of B: AV-NeRF's learned circular embedding added per layer, or the paper's concatenated Fourier features."
+    direction_encoding: Literal["embedding", "fourier", "harmonic"] = "fourier"
+    "Direction feature of B: AV-NeRF's learned circular embedding added per layer, the paper's concatenated Fourier features, or circular harmonics of theta."
+    direction_harmonics: int = 4
+    "Orders of the harmonic direction feature: cos(n theta), sin(n theta) for n = 1 .. this."
     post_conv: bool = False
     "AV-NeRF's optional time-frequency conv head on the ear magnitudes (avgs.acoustics.post_conv)."
     reverb_tail: bool = True

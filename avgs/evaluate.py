@@ -29,7 +29,7 @@ from avgs.baselines import BASELINES
 from avgs.data.rwavs import AudioClip, RWAVSScene, is_scene_dir
 
 Method = Callable[[AudioClip, RWAVSScene], "np.ndarray | torch.Tensor"]
-METRICS = ("MAG", "ENV")
+METRICS = ("MAG", "ENV", "ILD")
 CKPT_PREFIX = "ckpt:"
 
 
@@ -152,7 +152,7 @@ def predict(method: Method, clip: AudioClip, scene: RWAVSScene, name: str = "met
 def score_scene(
     method: Method, scene: RWAVSScene, name: str = "method", split: str = "val", progress: bool = True
 ) -> dict[str, float]:
-    """Mean MAG and ENV of ``method`` over the scene's ``split`` clips."""
+    """Mean MAG, ENV and ILD error of ``method`` over the scene's ``split`` clips."""
     clips = scene.clips(split)
     if not clips:
         raise ValueError(f"{scene.root}: no {split} clips to evaluate")
@@ -161,12 +161,13 @@ def score_scene(
         pred = predict(method, clip, scene, name)
         totals["MAG"] += metrics.mag(pred, clip.binaural)
         totals["ENV"] += metrics.env(pred, clip.binaural)
+        totals["ILD"] += metrics.ild_error(pred, clip.binaural)
     return {k: v / len(clips) for k, v in totals.items()}
 
 
 def _mean(scores: Iterable[dict[str, float]]) -> dict[str, float]:
     scores = list(scores)
-    return {k: float(np.mean([s[k] for s in scores])) for k in METRICS}
+    return {k: float(np.mean([s[k] for s in scores])) for k in scores[0]}
 
 
 def aggregate(scene_scores: dict[str, dict[str, float]], environments: dict[str, str]) -> dict:
@@ -211,19 +212,24 @@ def evaluate(
 
 
 def format_report(report: dict) -> str:
-    """Plain-text table: one row per scene, per environment and overall; MAG and ENV per method."""
+    """Plain-text table: one row per scene, per environment and overall; MAG, ENV and ILD
+    error (dB) per method (a report from before the ILD column shows '-' there)."""
     names = list(report["methods"])
     label_w = max([len("overall")] + [len(s) + 6 for s in report["environments"]] + [len(e) + 6 for e in report["environments"].values()])
-    col_w = max(18, *(len(n) + 2 for n in names))
+    col_w = max(24, *(len(n) + 2 for n in names))
     head1 = " " * label_w + "".join(f"{n:>{col_w}}" for n in names)
-    head2 = " " * label_w + "".join(f"{'MAG':>{col_w - 9}}{'ENV':>9}" for _ in names)
+    head2 = " " * label_w + "".join(f"{'MAG':>{col_w - 15}}{'ENV':>9}{'ILD':>6}" for _ in names)
     lines = [f"{report['split']} clips: {sum(report['clips'].values())} in {len(report['clips'])} scene(s)", head1, head2]
 
     def row(label: str, pick) -> str:
         cells = []
         for n in names:
             s = pick(report["methods"][n])
-            cells.append(f"{s['MAG']:>{col_w - 9}.3f}{s['ENV']:>9.4f}" if s else f"{'-':>{col_w - 9}}{'-':>9}")
+            if not s:
+                cells.append(f"{'-':>{col_w - 15}}{'-':>9}{'-':>6}")
+                continue
+            ild = f"{s['ILD']:>6.2f}" if "ILD" in s else f"{'-':>6}"
+            cells.append(f"{s['MAG']:>{col_w - 15}.3f}{s['ENV']:>9.4f}{ild}")
         return f"{label:<{label_w}}" + "".join(cells)
 
     for scene_id in report["environments"]:

@@ -5,6 +5,10 @@ Binaural quality (RWAVS, AV-NeRF):
 - :func:`mag` : ``2 * mean over [2, F, N] of (|S_pred| - |S_gt|)^2`` on the STFT
   magnitudes of :mod:`avgs.dsp` (the sum of the two channels' MSE).
 - :func:`env` : ``sum over channels of RMSE(|hilbert(gt_c)|, |hilbert(pred_c)|)``.
+- :func:`ild_error` (ours, not an anchor's): ``|ILD_pred - ILD_gt|`` in dB, the
+  interaural level difference of the whole clip above 1.5 kHz, where level is the
+  lateral cue (duplex theory). MAG scores both ears' spectra together; this isolates
+  whether the sound comes from the right side.
 
 Room acoustics (SoundSpaces / NAF conventions, on impulse responses):
 
@@ -46,6 +50,10 @@ from avgs.config import STFT, STFTConfig
 
 C50_LIMIT_DB = 100.0
 "C50 values are clipped to +-this many dB (a response with no late or no early energy)."
+ILD_MIN_HZ = 1500.0
+"Lower edge of the band in which :func:`ild` compares the ears (duplex theory: level is the lateral cue above ~1.5 kHz)."
+ILD_LIMIT_DB = 60.0
+"ILDs are clipped to +-this many dB (one ear silent)."
 FAILED_T60_ERROR = 100.0
 "T60 error in percent counted when either response's RT60 cannot be measured."
 
@@ -53,7 +61,7 @@ FAILED_T60_ERROR = 100.0
 def _numpy(x) -> np.ndarray:
     if isinstance(x, torch.Tensor):
         x = x.detach().cpu().numpy()
-    return np.asarray(x, dtype=np.float64)
+    return np.ascontiguousarray(x, dtype=np.float64)  # torch.from_numpy needs positive strides
 
 
 def _check_pair(pred: np.ndarray, gt: np.ndarray, name: str) -> None:
@@ -93,6 +101,33 @@ def env(pred, gt) -> float:
         return math.inf
     rmse = np.sqrt(np.mean((envelope(g) - envelope(p)) ** 2, axis=-1))  # [..., 2]
     return float(np.mean(np.sum(rmse, axis=-1)))
+
+
+def ild(x, stft: STFTConfig = STFT) -> np.ndarray:
+    """Interaural level difference in dB of binaural ``x [..., 2, T]`` -> ``[...]``.
+
+    ``10 log10(E_left / E_right)``, each ear's energy summed over the STFT bins at or
+    above :data:`ILD_MIN_HZ` and over all frames; positive = left louder. Clipped to
+    +-:data:`ILD_LIMIT_DB`; 0 dB when both ears are silent.
+    """
+    x = _numpy(x)
+    if x.ndim < 2 or x.shape[-2] != 2:
+        raise ValueError(f"ILD: expected binaural waveforms [..., 2, T], got {x.shape}")
+    m = dsp.magnitude(torch.from_numpy(x), stft).numpy()  # [..., 2, F, N]
+    first = int(math.ceil(ILD_MIN_HZ * stft.n_fft / stft.sample_rate))
+    e = np.sum(m[..., first:, :] ** 2, axis=(-2, -1))  # [..., 2]
+    tiny = np.finfo(np.float64).tiny
+    db = 10.0 * (np.log10(e[..., 0] + tiny) - np.log10(e[..., 1] + tiny))
+    return np.clip(db, -ILD_LIMIT_DB, ILD_LIMIT_DB)
+
+
+def ild_error(pred, gt, stft: STFTConfig = STFT) -> float:
+    """``|ILD_pred - ILD_gt|`` in dB of binaural ``pred``, ``gt`` ``[..., 2, T]`` (mean over clips)."""
+    p, g = _numpy(pred), _numpy(gt)
+    _check_pair(p, g, "ILD")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(g))):
+        return math.inf
+    return float(np.mean(np.abs(ild(p, stft) - ild(g, stft))))
 
 
 # -- room-acoustic parameters of one impulse response ---------------------------------

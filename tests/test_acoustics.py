@@ -95,7 +95,20 @@ def test_circular_embedding_meets_itself_at_the_back():
     assert torch.allclose(mid[0], 0.5 * (emb.table[0] + emb.table[1]))
 
 
-@pytest.mark.parametrize("encoding", ["embedding", "fourier"])
+def test_harmonic_direction_feature_is_periodic_and_lateral():
+    b = Binauralizer(context_dim=None, width=8, direction_encoding="harmonic", direction_harmonics=3)
+    theta = torch.tensor([0.5, 0.5 + 2 * math.pi, math.pi / 2, -math.pi / 2, math.pi, -math.pi])
+    e = b.direction_feature(theta)  # [6, 6] = cos(n theta) (+) sin(n theta), n = 1..3
+    assert e.shape == (6, 6) and b.direction_dim == 6
+    assert torch.allclose(e[0], e[1], atol=1e-5)  # one turn later, the same feature
+    assert torch.allclose(e[4], e[5], atol=1e-5)  # continuous across the listener's back
+    # sin(theta) is +1 with the source on the left, -1 on the right
+    assert e[2, 3] == pytest.approx(1.0) and e[3, 3] == pytest.approx(-1.0)
+    with pytest.raises(ValueError, match="direction_harmonics"):
+        Binauralizer(context_dim=None, direction_encoding="harmonic", direction_harmonics=0)
+
+
+@pytest.mark.parametrize("encoding", ["embedding", "fourier", "harmonic"])
 @pytest.mark.parametrize("activation", ["relu", "sigmoid"])
 def test_binauralizer_mask_shapes_and_ranges(encoding, activation):
     torch.manual_seed(0)

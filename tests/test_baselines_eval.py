@@ -92,9 +92,13 @@ def test_scene_score_is_the_mean_over_val_clips(scene):
 
 def test_any_callable_is_a_method(scene):
     oracle = lambda clip, scene: clip.binaural  # noqa: E731
-    assert evaluate.score_scene(oracle, scene, progress=False) == {"MAG": 0.0, "ENV": 0.0}
+    assert evaluate.score_scene(oracle, scene, progress=False) == {"MAG": 0.0, "ENV": 0.0, "ILD": 0.0}
     swapped = lambda clip, scene: clip.binaural[::-1]  # noqa: E731  left and right exchanged
-    assert evaluate.score_scene(swapped, scene, progress=False)["MAG"] > 0
+    swapped_score = evaluate.score_scene(swapped, scene, progress=False)
+    assert swapped_score["MAG"] > 0
+    # exchanging the ears negates every clip's ILD: the error is twice its size
+    ilds = [abs(2 * float(metrics.ild(c.binaural))) for c in scene.val]
+    assert swapped_score["ILD"] == pytest.approx(np.mean(ilds), rel=1e-6)
     short = lambda clip, scene: clip.binaural[:, :-1]  # noqa: E731
     with pytest.raises(ValueError, match=r"short returned \(2, 22049\) .* expected \(2, 22050\)"):
         evaluate.score_scene(short, scene, name="short", progress=False)
@@ -125,7 +129,7 @@ def test_cli_prints_tables_and_writes_json(data_root, tmp_path, capsys):
     for name, result in report["methods"].items():
         assert set(result["scenes"]) == {"7", "garden-1", "office_1", "office_2"}
         for score in result["scenes"].values():
-            assert set(score) == {"MAG", "ENV"} and all(np.isfinite(list(score.values())))
+            assert set(score) == {"MAG", "ENV", "ILD"} and all(np.isfinite(list(score.values())))
         office = np.mean([result["scenes"][s]["MAG"] for s in ("office_1", "office_2")])
         assert result["environments"]["office"]["MAG"] == pytest.approx(office)
         expected = np.mean([office, result["scenes"]["garden-1"]["MAG"], result["scenes"]["7"]["MAG"]])

@@ -70,6 +70,34 @@ def test_mag_and_env_reject_mismatched_shapes():
         metrics.env(np.zeros((3, 100)), np.zeros((3, 100)))
 
 
+def on_bin(k, amplitude=1.0):
+    n = np.arange(T_BIN)
+    return amplitude * np.cos(2 * np.pi * k * n / N_FFT)
+
+
+def test_ild_counts_only_the_band_above_1500_hz():
+    # bin 70 = 3.0 kHz carries 2:1 (+6.02 dB); bin 20 = 861 Hz (and its window leakage into
+    # bins 19-21) lies below the band and would say the opposite side
+    left = on_bin(70, 1.0) + on_bin(20, 0.1)
+    right = on_bin(70, 0.5) + on_bin(20, 5.0)
+    x = np.stack([left, right])
+    assert float(metrics.ild(x)) == pytest.approx(20 * math.log10(2.0), abs=1e-9)
+    assert metrics.ild_error(x[::-1], x) == pytest.approx(2 * 20 * math.log10(2.0), abs=1e-9)
+    assert metrics.ild_error(3.0 * x, x) == pytest.approx(0.0, abs=1e-9)  # a common gain keeps the ILD
+    batch = np.stack([x, x[::-1]])  # [2 clips, 2, T]
+    np.testing.assert_allclose(metrics.ild(batch), [6.0206, -6.0206], atol=1e-4)
+
+
+def test_ild_of_silence_is_defined():
+    silent = np.zeros((2, 4000))
+    one_ear = np.stack([np.zeros(T_BIN), on_bin(70)])
+    assert float(metrics.ild(silent)) == 0.0
+    assert float(metrics.ild(one_ear)) == -metrics.ILD_LIMIT_DB
+    assert metrics.ild_error(np.full((2, 4000), np.nan), silent) == math.inf
+    with pytest.raises(ValueError, match=r"\[\.\.\., 2, T\]"):
+        metrics.ild(np.zeros((3, 100)))
+
+
 # -- T60, C50, EDT -----------------------------------------------------------------------
 
 

@@ -45,6 +45,8 @@ from avgs.acoustics.reverb_tail import ReverbTail
 
 THETA_SCALE = 1.0 / (1.01 * math.pi)
 "theta (radians, in (-pi, pi]) times this lies strictly inside (-1, 1)."
+DIRECTION_ENCODINGS = ("embedding", "fourier", "harmonic")
+"Direction features B can use (see the module docstring)."
 
 
 class CircularEmbedding(nn.Module):
@@ -96,6 +98,8 @@ class Binauralizer(nn.Module):
         mixture_activation: str = "relu",
         direction_encoding: str = "embedding",
         direction_embedding: int = 180,
+        position_frequencies: int | None = None,
+        direction_harmonics: int = 4,
         mlp_layers: int = 4,
         post_conv: bool = False,
         reverb_tail: bool = False,
@@ -104,16 +108,20 @@ class Binauralizer(nn.Module):
         super().__init__()
         if mixture_activation not in ("relu", "sigmoid"):
             raise ValueError(f"mixture_activation must be 'relu' or 'sigmoid', got {mixture_activation!r}")
-        if direction_encoding not in ("embedding", "fourier"):
-            raise ValueError(f"direction_encoding must be 'embedding' or 'fourier', got {direction_encoding!r}")
+        if direction_encoding not in DIRECTION_ENCODINGS:
+            raise ValueError(f"direction_encoding must be one of {DIRECTION_ENCODINGS}, got {direction_encoding!r}")
+        if direction_encoding == "harmonic" and direction_harmonics < 1:
+            raise ValueError(f"direction_harmonics must be >= 1, got {direction_harmonics}")
         self.n_freq = n_freq
         self.pe_frequencies = pe_frequencies
+        self.position_frequencies = pe_frequencies if position_frequencies is None else int(position_frequencies)
+        self.direction_harmonics = int(direction_harmonics)
         self.mixture_activation = mixture_activation
         self.direction_encoding = direction_encoding
         self.register_buffer(
             "freq_query", torch.linspace(-0.99, 0.99, n_freq)[:, None], persistent=False
         )  # [F, 1]
-        query_dim = encoded_dim(2, pe_frequencies) + encoded_dim(1, pe_frequencies)  # 42 + 21
+        query_dim = encoded_dim(2, self.position_frequencies) + encoded_dim(1, pe_frequencies)  # 42 + 21 by default
         self.query_proj = nn.Linear(query_dim, width)
         self.context_proj = nn.Linear(context_dim, width) if context_dim else None
         self.mix_mlp = _linear_relu_stack(width, mlp_layers)
@@ -128,10 +136,30 @@ class Binauralizer(nn.Module):
             self.diff_mlp = _linear_relu_stack(width, mlp_layers)
         else:
             self.direction = None
-            self.diff_mlp = _linear_relu_stack(width, mlp_layers, in_dim=width + encoded_dim(1, pe_frequencies))
+            self.diff_mlp = _linear_relu_stack(width, mlp_layers, in_dim=width + self.direction_dim)
         self.diff_head = nn.Linear(width, 1)
         self.post_conv = PostConv() if post_conv else None  # applied to magnitudes, see AVGSModel
         self.reverb = ReverbTail(n_freq, width, hop_seconds) if reverb_tail else None
+
+    @property
+    def direction_dim(self) -> int:
+        """Width of :meth:`direction_feature` (Fourier and harmonic encodings)."""
+        if self.direction_encoding == "harmonic":
+            return 2 * self.direction_harmonics
+        return encoded_dim(1, self.pe_frequencies)
+
+    def direction_feature(self, theta: torch.Tensor) -> torch.Tensor:
+        """theta [B] radians -> the concatenated direction feature e [B, direction_dim].
+
+        ``fourier``: positional encoding of theta / (1.01 pi). ``harmonic``: cos(n theta),
+        sin(n theta) for n = 1 .. direction_harmonics, periodic across the listener's back,
+        and sin(theta), the source's lateral offset, is one of its inputs.
+        """
+        if self.direction_encoding == "harmonic":
+            n = torch.arange(1, self.direction_harmonics + 1, device=theta.device, dtype=theta.dtype)  # [K]
+            nt = theta[:, None] * n  # [B, K]
+            return torch.cat([torch.cos(nt), torch.sin(nt)], dim=-1)
+        return positional_encoding((theta * THETA_SCALE)[:, None], self.pe_frequencies)
 
     def forward(
         self, listener_xy: torch.Tensor, theta: torch.Tensor, context: torch.Tensor | None = None
@@ -139,7 +167,7 @@ class Binauralizer(nn.Module):
         """listener_xy: [B, 2] normalised; theta: [B] radians (positive = source on the left);
         context: [B, C] or None -> :class:`BinauralMasks` (m_m [B, F], m_d [B, F], r [B, 2, F] or None)."""
         B, F = listener_xy.shape[0], self.n_freq
-        pos = positional_encoding(listener_xy, self.pe_frequencies)  # [B, 42]
+        pos = positional_encoding(listener_xy, self.position_frequencies)  # [B, 42]
         freq = positional_encoding(self.freq_query, self.pe_frequencies)  # [F, 21]
         query = torch.cat([pos[:, None, :].expand(B, F, -1), freq[None].expand(B, F, -1)], dim=-1)  # [B, F, 63]
         q = torch.relu(self.query_proj(query))  # [B, F, W]
@@ -154,14 +182,13 @@ class Binauralizer(nn.Module):
         m = self.mix_head(h)[..., 0]  # [B, F]
         mixture = torch.relu(m) if self.mixture_activation == "relu" else torch.sigmoid(m)
 
-        t = theta * THETA_SCALE  # [B] in (-1, 1)
         if self.direction is not None:
-            e = self.direction(t)[:, None, :]  # [B, 1, W]
+            e = self.direction(theta * THETA_SCALE)[:, None, :]  # [B, 1, W]
             g = h
             for layer in self.diff_mlp:
                 g = torch.relu(layer(g)) + e
         else:
-            e = positional_encoding(t[:, None], self.pe_frequencies)  # [B, 21]
+            e = self.direction_feature(theta)  # [B, D]
             g = torch.cat([h, e[:, None, :].expand(B, F, -1)], dim=-1)
             for layer in self.diff_mlp:
                 g = torch.relu(layer(g))

@@ -89,9 +89,11 @@ class FastMasks:
         b = model.binauralizer
         self.n_freq = int(b.n_freq)
         self.pe = int(b.pe_frequencies)
+        self.pos_pe = int(b.position_frequencies)
+        self._direction_feature = b.direction_feature
         self.relu_mixture = b.mixture_activation == "relu"
         Wq = b.query_proj.weight.float()  # [W, 63]
-        pos_dim = 2 * (2 * self.pe + 1)
+        pos_dim = 2 * (2 * self.pos_pe + 1)
         freq_pe = positional_encoding(b.freq_query.float(), self.pe)  # [F, 21]
         self._q_freq = torch.addmm(b.query_proj.bias.float(), freq_pe, Wq[:, pos_dim:].T).to(dtype)  # [F, W]
         self._Wq_pos = Wq[:, :pos_dim].T.contiguous().to(dtype)  # [42, W]
@@ -148,7 +150,7 @@ class FastMasks:
     def binauralize(self, listener_xy, theta: float, context: torch.Tensor | None):
         """(m_m [F], m_d [F], r [2, F] or None) for a listener at ``listener_xy`` (2 floats), ``theta`` radians."""
         xy = torch.tensor([[float(listener_xy[0]), float(listener_xy[1])]], device=self.device, dtype=self.dtype)
-        row = positional_encoding(xy, self.pe)[0] @ self._Wq_pos  # [W]
+        row = positional_encoding(xy, self.pos_pe)[0] @ self._Wq_pos  # [W]
         q = torch.add(self._q_freq, row, out=self._q).relu_()  # [F, W] = relu(query_proj(PE(xy) (+) PE(f)))
         if self._ctx is not None:
             if context is None:
@@ -163,15 +165,15 @@ class FastMasks:
         m = torch.addmm(bm, h, Wm)[:, 0]  # [F]
         mixture = m.relu() if self.relu_mixture else m.sigmoid()
 
-        t = max(-1.0, min(1.0, float(theta) * THETA_SCALE))
         if self._embedding is not None:
+            t = max(-1.0, min(1.0, float(theta) * THETA_SCALE))
             e = self._embedding(torch.tensor([t], device=self.device)).to(self.dtype)[0]  # [W]
             g = h
             for W, b in self._diff:
                 g = torch.addmm(b, g, W).relu_().add_(e)
         else:
             Wh, We, b0 = self._diff_first
-            e = positional_encoding(torch.tensor([[t]], device=self.device, dtype=self.dtype), self.pe)[0]  # [21]
+            e = self._direction_feature(torch.tensor([float(theta)], device=self.device)).to(self.dtype)[0]  # [D]
             g = torch.addmm(torch.addmv(b0, We.T, e), h, Wh).relu_()  # [F, W]
             for W, b in self._diff:
                 g = torch.addmm(b, g, W).relu_()

@@ -80,6 +80,8 @@ class AVGSModel(nn.Module):
             mixture_activation=cfg.mixture_activation,
             direction_encoding=cfg.direction_encoding,
             direction_embedding=cfg.direction_embedding,
+            position_frequencies=cfg.position_frequencies,
+            direction_harmonics=cfg.direction_harmonics,
             post_conv=cfg.post_conv,
             reverb_tail=cfg.reverb_tail,
             hop_seconds=stft.hop_length / stft.sample_rate,

@@ -37,6 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=field_help(AcousticConfig, "reverb_tail"))
     parser.add_argument("--no-reverb-tail", dest="reverb_tail", action="store_false",
                         help="B with the paper's time-invariant masks only (no reverberant tail).")
+    parser.add_argument("--direction-encoding", choices=("embedding", "fourier", "harmonic"),
+                        help=field_help(AcousticConfig, "direction_encoding"))
+    parser.add_argument("--direction-harmonics", type=int, metavar="K", help=field_help(AcousticConfig, "direction_harmonics"))
+    parser.add_argument("--position-frequencies", type=int, metavar="N", help=field_help(AcousticConfig, "position_frequencies"))
     parser.add_argument("--no-gaussians", action="store_true", help="Do not store G in the checkpoint.")
     parser.add_argument("--device", choices=("cpu", "cuda"), help=field_help(TrainConfig, "device"))
     parser.add_argument("--seed", type=int, help=field_help(TrainConfig, "seed"))
@@ -60,6 +64,9 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "alpha_init": (cfg.acoustic, "alpha_init"),
         "post_conv": (cfg.acoustic, "post_conv"),
         "reverb_tail": (cfg.acoustic, "reverb_tail"),
+        "direction_encoding": (cfg.acoustic, "direction_encoding"),
+        "direction_harmonics": (cfg.acoustic, "direction_harmonics"),
+        "position_frequencies": (cfg.acoustic, "position_frequencies"),
         "audio_points": (cfg.points, "initial_points"),
         "init": (cfg, "init"),
         "device": (cfg, "device"),
@@ -76,6 +83,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         raise ValueError("--image-downscale and --max-gaussians must be >= 1")
     if not 0 < cfg.acoustic.vicinity_percentile <= 100:
         raise ValueError(f"--vicinity-percentile must be in (0, 100], got {cfg.acoustic.vicinity_percentile}")
+    if cfg.acoustic.direction_harmonics < 1 or cfg.acoustic.position_frequencies < 0:
+        raise ValueError("--direction-harmonics must be >= 1 and --position-frequencies >= 0")
     parse_alpha_spec(cfg.acoustic.alpha_init)
     cfg.points.enabled = not args.no_point_management
     cfg.acoustic.use_context = not args.no_context
