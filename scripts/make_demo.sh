@@ -19,7 +19,10 @@ WORK=runs/demo
 # 1. The scene: a two-room house with a door, 200 train + 50 val poses (about 6 min on 2 cores).
 [ -d "$SCENE" ] || $AVGS synth data/demo --preset house --scene-id demo_house --poses 250 --seed 7
 
-# 2. Stage 1: G on the key frames (3k iterations, at most 50k Gaussians).
+# 2. Stage 1: G on the key frames (3k iterations, at most 50k Gaussians). The committed demo's
+#    stage 2 was retrained (new binauralizer inputs) on the G of the demo before it, which this
+#    step had made with gsplat: runs/demo/scene.ckpt.stage1.pt was written from that checkpoint's
+#    Gaussians with avgs.train.stage1.save_stage1 (same G, same key, so step 3 reuses it).
 [ -f "$WORK/scene.ckpt.stage1.pt" ] || \
   $AVGS train "$SCENE" --out "$WORK/scene.ckpt" --stage1-only --device "$DEVICE" --max-gaussians 50000
 

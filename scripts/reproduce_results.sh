@@ -40,6 +40,25 @@ for p in $PRESETS; do
   train ${p}_0 runs/masks/nocontext/${p}_0.ckpt --iterations 2000 --no-reverb-tail --no-context
 done
 
+# Direction and position features of B: the paper's Fourier direction features with AV-NeRF's
+# 10-frequency listener encoding (the defaults before this comparison) against circular
+# harmonics with 4 frequencies (the defaults after it). G_a straight from the geometry
+# (--init sfm, no stage 1), so the comparison needs no GPU.
+sfm() {
+  local scene=$1 out=$2; shift 2
+  [ -f "$out" ] && return 0
+  while [ "$(jobs -rp | wc -l)" -ge "$JOBS" ]; do wait -n; done
+  mkdir -p "$(dirname "$out")"
+  $A train data/presets/$scene --out "$out" --init sfm --no-gaussians $COMMON --iterations 2000 "$@" > "$out.out" 2>&1 &
+}
+OLD="--direction-encoding fourier --position-frequencies 10"
+for p in $PRESETS; do
+  sfm ${p}_0 runs/features/old/avgs/${p}_0.ckpt $OLD
+  sfm ${p}_0 runs/features/old/nocontext/${p}_0.ckpt $OLD --no-context
+  sfm ${p}_0 runs/features/new/avgs/${p}_0.ckpt
+  sfm ${p}_0 runs/features/new/nocontext/${p}_0.ckpt --no-context
+done
+
 # Ablations on the office scene, 2000 iterations each (the val column of each log's final record).
 ab() { name=$1; shift; train office_0 runs/ablation/$name/office_0.ckpt --iterations 2000 "$@"; }
 ab sfm --init sfm; ab no-pm --no-point-management
@@ -49,6 +68,8 @@ wait
 $A eval data/presets --method mono-mono --method mono-energy --method stereo-energy --method oracle-mask \
   --method ckpt:runs/masks/nocontext --method ckpt:runs/masks/avgs \
   --method ckpt:runs/main/nocontext --method ckpt:runs/main/avgs --json runs/main/eval.json --no-progress
+$A eval data/presets --method stereo-energy --method ckpt:runs/features/old/nocontext --method ckpt:runs/features/old/avgs \
+  --method ckpt:runs/features/new/nocontext --method ckpt:runs/features/new/avgs --json runs/features/eval.json --no-progress
 for d in runs/main/avgs runs/main/nocontext runs/ablation/*; do
   echo "$d $(grep '"final"' $d/office_0.ckpt.log.jsonl)"
 done

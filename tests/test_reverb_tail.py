@@ -171,3 +171,9 @@ def test_checkpoints_from_before_the_tail_load_as_the_mask_model():
     del stored["acoustic"]["reverb_tail"]  # as written before the tail existed
     assert TrainConfig.from_dict(stored).acoustic.reverb_tail is False
     assert TrainConfig.from_dict(TrainConfig().to_dict()).acoustic.reverb_tail is True
+
+
+def test_checkpoints_from_before_the_listener_encoding_option_keep_ten_frequencies():
+    stored = TrainConfig().to_dict()
+    del stored["acoustic"]["position_frequencies"]  # as written before the option existed
+    assert TrainConfig.from_dict(stored).acoustic.position_frequencies == 10

@@ -4,7 +4,7 @@ visual feature; paper appendix "Binauralizer").
 Per listener pose and for each of the F = 257 frequency bins it predicts a mixture mask
 ``m_m`` and a difference mask ``m_d`` (time-invariant, broadcast over STFT frames)::
 
-    q   = ReLU(Linear(PE(x, y) (+) PE(f)))             42 + 21 -> width
+    q   = ReLU(Linear(PE(x, y) (+) PE(f)))             18 + 21 -> width (42 + 21 in AV-NeRF)
     q  += Linear(C)                                      scene context (if used)
     h   = MLP_mix(q) + q                                 4 x (Linear + ReLU), residual
     m_m = act(Linear(h))                                 act: relu (AV-NeRF) or sigmoid (paper)
@@ -17,13 +17,19 @@ The reverberant gains ``r [B, 2, F]`` exist only with ``reverb_tail`` (our addit
 :mod:`avgs.acoustics.reverb_tail`); the module then also holds the scene's learned RT60.
 
 The frequency index is mapped linearly onto [-0.99, 0.99] before encoding. Positional
-encodings use 10 log-spaced frequencies up to 2^9 (:mod:`avgs.acoustics.encodings`).
+encodings use log-spaced frequencies (:mod:`avgs.acoustics.encodings`): 10, up to 2^9,
+for the frequency query as in AV-NeRF; ``position_frequencies`` (default 4, up to 2^3)
+for the listener's (x, y) in the normalised frame. AV-NeRF's 10 resolve ~1 cm, far finer
+than a few hundred training poses can pin down, and B memorised them (measured, see
+:data:`avgs.config.AcousticConfig.position_frequencies`).
 
 Direction feature (``direction_encoding``): ``"embedding"`` follows AV-NeRF's code, a learned,
 circularly interpolated table of ``direction_embedding`` vectors added after each layer of
 the difference MLP (AV-NeRF's table is coarser: 4 entries, with its own vector per layer);
 ``"fourier"`` is the paper's text, a high-frequency transform of theta concatenated with
-the mixture feature. Default chosen by measurement, see
+the mixture feature; ``"harmonic"`` (default) concatenates ``cos(n theta), sin(n theta)``,
+n = 1 .. ``direction_harmonics``: smooth, periodic across the listener's back, with the
+source's lateral offset sin(theta) as an input. Chosen by measurement, see
 :data:`avgs.config.AcousticConfig.direction_encoding`.
 
 AV-NeRF leaves ``m_m`` linear and applies the ReLU to the ear magnitudes, so a bin with a

@@ -12,7 +12,7 @@ work per pose, by exact rewrites of the network and caches kept between calls:
   vicinity: it is applied once to the mean instead of k times.
 - **B**: the 257 frequency queries share their positional encoding; its projection
   ``W_f PE(f) + b`` is precomputed (``[F, width]``), a pose adds ``W_xy PE(x, y)``
-  and the projected context (one vector each). With Fourier direction features the
+  and the projected context (one vector each). With concatenated direction features the
   first difference layer is split the same way. All 257 queries go through the MLPs
   as one ``[F, width]`` batch, into work buffers kept between calls.
 - C_S is computed by :meth:`source_context` and cached by the caller until the source
@@ -103,7 +103,7 @@ class FastMasks:
         self._embedding = b.direction
         diff = [(m.weight.T.contiguous().to(dtype), m.bias.to(dtype)) for m in b.diff_mlp]
         W = self._q_freq.shape[1]
-        if self._embedding is None:  # fourier: split the first difference layer into h and e parts
+        if self._embedding is None:  # fourier or harmonic: split the first difference layer into h and e parts
             W0, b0 = diff[0]  # [W + 21, W]
             self._diff_first = (W0[:W].contiguous(), W0[W:].contiguous(), b0)
             diff = diff[1:]
