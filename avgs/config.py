@@ -100,7 +100,7 @@ class AcousticConfig:
     pe_frequencies: int = 10
     "Positional-encoding frequencies of the frequency query (and of Fourier direction features), log-spaced up to 2^(n-1)."
     # Measured (four presets, --init sfm, 2000 iterations, val; `avgs eval` ILD error above
-    # 1.5 kHz): 10 frequencies (up to 2^9 per normalised unit, wavelengths of ~1 cm) let
+    # 1.5 kHz): 10 frequencies (up to 2^9 per normalised unit, wavelengths of ~0.01) let
     # B memorise the 200 training poses; 4 (up to 2^3, ~0.8 units) lowered MAG on all four
     # presets and the ILD error on three. See README "Direction and position features".
     position_frequencies: int = 4

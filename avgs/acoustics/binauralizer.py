@@ -19,8 +19,9 @@ The reverberant gains ``r [B, 2, F]`` exist only with ``reverb_tail`` (our addit
 The frequency index is mapped linearly onto [-0.99, 0.99] before encoding. Positional
 encodings use log-spaced frequencies (:mod:`avgs.acoustics.encodings`): 10, up to 2^9,
 for the frequency query as in AV-NeRF; ``position_frequencies`` (default 4, up to 2^3)
-for the listener's (x, y) in the normalised frame. AV-NeRF's 10 resolve ~1 cm, far finer
-than a few hundred training poses can pin down, and B memorised them (measured, see
+for the listener's (x, y) in the normalised frame. AV-NeRF's 10 resolve far finer
+than a few hundred training poses can pin down (2^9 per normalised unit: wavelengths of
+about 0.01 units), and B memorised them (measured, see
 :data:`avgs.config.AcousticConfig.position_frequencies`).
 
 Direction feature (``direction_encoding``): ``"embedding"`` follows AV-NeRF's code, a learned,
@@ -127,7 +128,7 @@ class Binauralizer(nn.Module):
         self.register_buffer(
             "freq_query", torch.linspace(-0.99, 0.99, n_freq)[:, None], persistent=False
         )  # [F, 1]
-        query_dim = encoded_dim(2, self.position_frequencies) + encoded_dim(1, pe_frequencies)  # 42 + 21 by default
+        query_dim = encoded_dim(2, self.position_frequencies) + encoded_dim(1, pe_frequencies)  # 18 + 21 by default
         self.query_proj = nn.Linear(query_dim, width)
         self.context_proj = nn.Linear(context_dim, width) if context_dim else None
         self.mix_mlp = _linear_relu_stack(width, mlp_layers)
@@ -173,9 +174,9 @@ class Binauralizer(nn.Module):
         """listener_xy: [B, 2] normalised; theta: [B] radians (positive = source on the left);
         context: [B, C] or None -> :class:`BinauralMasks` (m_m [B, F], m_d [B, F], r [B, 2, F] or None)."""
         B, F = listener_xy.shape[0], self.n_freq
-        pos = positional_encoding(listener_xy, self.position_frequencies)  # [B, 42]
+        pos = positional_encoding(listener_xy, self.position_frequencies)  # [B, P] (P = 18 by default)
         freq = positional_encoding(self.freq_query, self.pe_frequencies)  # [F, 21]
-        query = torch.cat([pos[:, None, :].expand(B, F, -1), freq[None].expand(B, F, -1)], dim=-1)  # [B, F, 63]
+        query = torch.cat([pos[:, None, :].expand(B, F, -1), freq[None].expand(B, F, -1)], dim=-1)  # [B, F, P + 21]
         q = torch.relu(self.query_proj(query))  # [B, F, W]
         if self.context_proj is not None:
             if context is None:

@@ -92,11 +92,11 @@ class FastMasks:
         self.pos_pe = int(b.position_frequencies)
         self._direction_feature = b.direction_feature
         self.relu_mixture = b.mixture_activation == "relu"
-        Wq = b.query_proj.weight.float()  # [W, 63]
+        Wq = b.query_proj.weight.float()  # [W, P + 21]
         pos_dim = 2 * (2 * self.pos_pe + 1)
         freq_pe = positional_encoding(b.freq_query.float(), self.pe)  # [F, 21]
         self._q_freq = torch.addmm(b.query_proj.bias.float(), freq_pe, Wq[:, pos_dim:].T).to(dtype)  # [F, W]
-        self._Wq_pos = Wq[:, :pos_dim].T.contiguous().to(dtype)  # [42, W]
+        self._Wq_pos = Wq[:, :pos_dim].T.contiguous().to(dtype)  # [P, W]
         self._ctx = None if b.context_proj is None else (b.context_proj.weight.T.contiguous().to(dtype), b.context_proj.bias.to(dtype))
         self._mix = [(m.weight.T.contiguous().to(dtype), m.bias.to(dtype)) for m in b.mix_mlp]
         self._mix_head = (b.mix_head.weight.T.contiguous().to(dtype), b.mix_head.bias.to(dtype))  # [W, 1], [1]
@@ -104,7 +104,7 @@ class FastMasks:
         diff = [(m.weight.T.contiguous().to(dtype), m.bias.to(dtype)) for m in b.diff_mlp]
         W = self._q_freq.shape[1]
         if self._embedding is None:  # fourier or harmonic: split the first difference layer into h and e parts
-            W0, b0 = diff[0]  # [W + 21, W]
+            W0, b0 = diff[0]  # [W + D, W]
             self._diff_first = (W0[:W].contiguous(), W0[W:].contiguous(), b0)
             diff = diff[1:]
         self._diff = diff
