@@ -1,4 +1,4 @@
-"""``avgs eval DATA_ROOT``: MAG and ENV of baselines and checkpoints on the val clips.
+"""``avgs eval DATA_ROOT``: MAG, ENV and ILD error of baselines and checkpoints on the val clips.
 
 Prints a table per scene, per environment and overall (mean of the environment means,
 as RWAVS); ``--json`` writes the same numbers. A scene's environment comes from its
