@@ -88,11 +88,13 @@ def test_alpha_specs():
 
 
 def test_circular_embedding_meets_itself_at_the_back():
+    torch.manual_seed(0)
     emb = CircularEmbedding(12, 4)
     ends = emb(torch.tensor([-1.0, 1.0]))
     assert torch.allclose(ends[0], ends[1])
     mid = emb(torch.tensor([-1.0 + 1.0 / 12]))  # halfway between entries 0 and 1
-    assert torch.allclose(mid[0], 0.5 * (emb.table[0] + emb.table[1]))
+    # float32 puts the position 3e-7 off the half-way point: weights off by as much
+    assert torch.allclose(mid[0], 0.5 * (emb.table[0] + emb.table[1]), atol=1e-6)
 
 
 def test_harmonic_direction_feature_is_periodic_and_lateral():
