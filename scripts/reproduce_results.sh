@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The runs behind the README's results tables, exactly as they were made.
-# Stage 1 ran on the CPU with our PyTorch rasterizer for the current tables (40-47 min per
+# Stage 1 ran on the CPU with our PyTorch rasterizer for the current tables (39-47 min per
 # scene, 4-5 runs sharing 2 cores); with CUDA the same commands use gsplat (~25 s per scene).
 # Stage 2 ran on the CPU, one torch thread per run, two runs at a time on a 2-core
 # machine (JOBS=2). A run whose checkpoint exists is skipped, so the script continues
