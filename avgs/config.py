@@ -81,6 +81,10 @@ class GaussianConfig:
     "Write a stage-1 log record (loss, PSNR, Gaussian count) every this many iterations."
 
 
+DIRECTION_ENCODINGS = ("embedding", "fourier", "harmonic")
+"Direction features B can use (:mod:`avgs.acoustics.binauralizer`)."
+
+
 @dataclass
 class AcousticConfig:
     """Stage 2: audio points G_a, acoustic field network F and binauralizer B."""

@@ -213,7 +213,7 @@ def evaluate(
 
 def format_report(report: dict) -> str:
     """Plain-text table: one row per scene, per environment and overall; MAG, ENV and ILD
-    error (dB) per method (a report from before the ILD column shows '-' there)."""
+    error (dB) per method."""
     names = list(report["methods"])
     label_w = max([len("overall")] + [len(s) + 6 for s in report["environments"]] + [len(e) + 6 for e in report["environments"].values()])
     col_w = max(24, *(len(n) + 2 for n in names))
@@ -225,11 +225,9 @@ def format_report(report: dict) -> str:
         cells = []
         for n in names:
             s = pick(report["methods"][n])
-            if not s:
-                cells.append(f"{'-':>{col_w - 15}}{'-':>9}{'-':>6}")
-                continue
-            ild = f"{s['ILD']:>6.2f}" if "ILD" in s else f"{'-':>6}"
-            cells.append(f"{s['MAG']:>{col_w - 15}.3f}{s['ENV']:>9.4f}{ild}")
+            cells.append(
+                f"{s['MAG']:>{col_w - 15}.3f}{s['ENV']:>9.4f}{s['ILD']:>6.2f}" if s else f"{'-':>{col_w - 15}}{'-':>9}{'-':>6}"
+            )
         return f"{label:<{label_w}}" + "".join(cells)
 
     for scene_id in report["environments"]:

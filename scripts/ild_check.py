@@ -25,7 +25,7 @@ from scipy.signal import fftconvolve
 
 from avgs import metrics
 from avgs.data.rwavs import RWAVSScene
-from avgs.inference import SceneRenderer
+from avgs.evaluate import CheckpointMethod
 
 
 def probe_poses(scene_dir: str, n: int, mono: np.ndarray, seed: int = 0):
@@ -73,15 +73,13 @@ def main() -> None:
     val_true = np.array([float(metrics.ild(c.binaural)) for c in clips])
     probe_true = np.array([float(metrics.ild(t)) for _, _, t in probes])
     for path in args.checkpoints:
-        renderer = SceneRenderer.load(path)
-        val_pred = np.array([
-            float(metrics.ild(renderer.render(tuple(scene.frame.to_world(c.listener)), math.degrees(c.yaw), c.mono).binaural))
-            for c in clips
-        ])
+        method = CheckpointMethod(path)  # as `avgs eval` renders a clip
+        val_pred = np.array([float(metrics.ild(method(c, scene))) for c in clips])
         print(f"{path}\n  val clips  {summary(val_pred, val_true)}")
         if probes:
             probe_pred = np.array([
-                float(metrics.ild(renderer.render(tuple(p), yaw, mono.astype(np.float32)).binaural)) for p, yaw, _ in probes
+                float(metrics.ild(method.renderer.render(tuple(p), yaw, mono.astype(np.float32)).binaural))
+                for p, yaw, _ in probes
             ])
             print(f"  probes     {summary(probe_pred, probe_true)}")
 

@@ -21,14 +21,16 @@ for p in $PRESETS; do   # 200 train + 50 val poses each (4-9 min per scene on 2 
     $A train data/presets/${p}_0 --out runs/stage1/${p}_0.ckpt --stage1-only --device $DEVICE --max-gaussians 50000
 done
 
-# One stage-2 run: train SCENE OUT [flags...], skipped when OUT exists; at most JOBS at once.
-train() {
+# One stage-2 run: run SCENE OUT [flags...], skipped when OUT exists; at most JOBS at once.
+run() {
   local scene=$1 out=$2; shift 2
   [ -f "$out" ] && return 0
   while [ "$(jobs -rp | wc -l)" -ge "$JOBS" ]; do wait -n; done
   mkdir -p "$(dirname "$out")"
-  $A train data/presets/$scene --out "$out" --stage1 runs/stage1/$scene.ckpt.stage1.pt $COMMON "$@" > "$out.out" 2>&1 &
+  $A train data/presets/$scene --out "$out" $COMMON "$@" > "$out.out" 2>&1 &
 }
+# ... on the scene's shared stage 1.
+train() { run "$1" "$2" --stage1 "runs/stage1/$1.ckpt.stage1.pt" "${@:3}"; }
 
 # Main table: AV-GS and the --no-context control with the defaults; same stage 1, 2000
 # iterations each.
@@ -41,13 +43,7 @@ done
 # 10-frequency listener encoding (the defaults before this comparison) against circular
 # harmonics with 4 frequencies (the defaults after it). G_a straight from the geometry
 # (--init sfm, no stage 1), so the comparison needs no GPU.
-sfm() {
-  local scene=$1 out=$2; shift 2
-  [ -f "$out" ] && return 0
-  while [ "$(jobs -rp | wc -l)" -ge "$JOBS" ]; do wait -n; done
-  mkdir -p "$(dirname "$out")"
-  $A train data/presets/$scene --out "$out" --init sfm --no-gaussians $COMMON --iterations 2000 "$@" > "$out.out" 2>&1 &
-}
+sfm() { run "$1" "$2" --init sfm --no-gaussians --iterations 2000 "${@:3}"; }
 OLD="--direction-encoding fourier --position-frequencies 10"
 for p in $PRESETS; do
   sfm ${p}_0 runs/features/old/avgs/${p}_0.ckpt $OLD

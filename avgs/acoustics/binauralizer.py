@@ -49,11 +49,10 @@ from torch import nn
 from avgs.acoustics.encodings import encoded_dim, positional_encoding
 from avgs.acoustics.post_conv import PostConv
 from avgs.acoustics.reverb_tail import ReverbTail
+from avgs.config import DIRECTION_ENCODINGS
 
 THETA_SCALE = 1.0 / (1.01 * math.pi)
 "theta (radians, in (-pi, pi]) times this lies strictly inside (-1, 1)."
-DIRECTION_ENCODINGS = ("embedding", "fourier", "harmonic")
-"Direction features B can use (see the module docstring)."
 
 
 class CircularEmbedding(nn.Module):

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from avgs.config import AcousticConfig, GaussianConfig, PointManagementConfig, TrainConfig, field_help
+from avgs.config import DIRECTION_ENCODINGS, AcousticConfig, GaussianConfig, PointManagementConfig, TrainConfig, field_help
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=field_help(AcousticConfig, "reverb_tail"))
     parser.add_argument("--no-reverb-tail", dest="reverb_tail", action="store_false",
                         help="B with the paper's time-invariant masks only (no reverberant tail).")
-    parser.add_argument("--direction-encoding", choices=("embedding", "fourier", "harmonic"),
+    parser.add_argument("--direction-encoding", choices=DIRECTION_ENCODINGS,
                         help=field_help(AcousticConfig, "direction_encoding"))
     parser.add_argument("--direction-harmonics", type=int, metavar="K", help=field_help(AcousticConfig, "direction_harmonics"))
     parser.add_argument("--position-frequencies", type=int, metavar="N", help=field_help(AcousticConfig, "position_frequencies"))
