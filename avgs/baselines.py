@@ -1,7 +1,8 @@
 """Reference methods of the RWAVS benchmark (AV-NeRF, AV-GS Table 1).
 
 Each is a *method* in the sense of :mod:`avgs.evaluate`: a callable
-``(clip, scene) -> binaural [2, T]`` float32. Mono-Energy and Stereo-Energy are oracle
+``(clip, scene) -> binaural [2, T]`` float32 (Oracle-Mask: an
+:class:`avgs.evaluate.Prediction`, the waveform and the masked magnitudes behind it). Mono-Energy and Stereo-Energy are oracle
 baselines: they read the ground-truth energy of the clip they predict.
 
 - Mono-Mono: the source copied to both ears.
@@ -52,11 +53,13 @@ def stereo_energy(clip: "AudioClip", scene: "RWAVSScene | None" = None) -> np.nd
     return (g[:, None] * mono[None, :]).astype(np.float32)
 
 
-def oracle_mask(clip: "AudioClip", scene: "RWAVSScene | None" = None) -> np.ndarray:
-    """The best time-invariant mask per ear for this clip's own target: ``[2, T]``."""
+def oracle_mask(clip: "AudioClip", scene: "RWAVSScene | None" = None):
+    """The best time-invariant mask per ear for this clip's own target, as an
+    :class:`avgs.evaluate.Prediction`: the waveform ``[2, T]`` and the masked magnitudes ``[2, F, N]``."""
     import torch
 
     from avgs import dsp
+    from avgs.evaluate import Prediction
 
     mono = torch.from_numpy(np.ascontiguousarray(clip.mono, dtype=np.float32))
     spec = dsp.stft(mono[None].double())[0]  # [F, N] complex
@@ -66,7 +69,7 @@ def oracle_mask(clip: "AudioClip", scene: "RWAVSScene | None" = None) -> np.ndar
     den = mag.square().sum(-1)  # [F]
     gains = torch.where(den > 0, num / den.clamp_min(1e-300), torch.zeros_like(num))  # [2, F]
     y = dsp.istft(spec[None] * gains[..., None], mono.shape[-1])  # [2, T]
-    return y.float().numpy()
+    return Prediction(y.float().numpy(), (mag[None] * gains[..., None]).float().numpy())
 
 
 BASELINES = {

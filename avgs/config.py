@@ -233,6 +233,22 @@ class TrainConfig:
         return cls(**kwargs)
 
 
+@dataclass(frozen=True)
+class SynthesisConfig:
+    """How a waveform is made from B's predicted ear magnitudes (render time, not training).
+
+    AV-NeRF and the paper take the source's phase. Those magnitudes with that phase are
+    rarely the STFT of any signal, so the waveform's own spectrogram comes out blurred
+    away from the prediction. A few iterations of fast Griffin-Lim (Perraudin et al.
+    2013), starting from the source's phase, bring it back (:func:`avgs.dsp.griffin_lim`).
+    """
+
+    phase_iterations: int = 8
+    "Fast Griffin-Lim iterations from the source's phase; 0 keeps the source's phase (the paper's)."
+    phase_momentum: float = 0.99
+    "Momentum of fast Griffin-Lim (0 is the original Griffin-Lim)."
+
+
 ADDED_LATER = {"acoustic": {"reverb_tail": False, "position_frequencies": 10}}
 "Fields absent from older stored configurations, with the value that the older code used."
 

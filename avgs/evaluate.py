@@ -1,10 +1,16 @@
 """Score methods on RWAVS-layout scenes: per scene, per environment and overall.
 
 A *method* is any callable ``(clip: AudioClip, scene: RWAVSScene) -> binaural [2, T]``
-(numpy or torch, T = the clip's length). The baselines of :mod:`avgs.baselines` are
+(numpy or torch, T = the clip's length), or a :class:`Prediction` when the method made
+its waveform from predicted magnitudes. The baselines of :mod:`avgs.baselines` are
 methods; :class:`CheckpointMethod` turns a trained ``scene.ckpt`` into one. A method may
 also define ``applies_to(scene) -> bool``; scenes it does not apply to are left out of
 its scores (a checkpoint applies to the scene it was trained on).
+
+Columns: MAG of the waveform (:func:`avgs.metrics.mag`, what a listener hears), ENV,
+the ILD error, and MAGp, MAG of the predicted magnitudes
+(:func:`avgs.metrics.mag_spectrogram`), AV-NeRF's own evaluation convention and the one
+its published numbers use. For a method that returns only a waveform, MAGp is its MAG.
 
 Aggregation follows RWAVS: a scene's score is the mean over its val clips; an
 environment's is the mean over its scenes; overall is the mean of the environment
@@ -19,17 +25,27 @@ import math
 import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from avgs import metrics
+from avgs import dsp, metrics
 from avgs.baselines import BASELINES
+from avgs.config import STFT, SynthesisConfig
 from avgs.data.rwavs import AudioClip, RWAVSScene, is_scene_dir
 
-Method = Callable[[AudioClip, RWAVSScene], "np.ndarray | torch.Tensor"]
-METRICS = ("MAG", "ENV", "ILD")
+
+class Prediction(NamedTuple):
+    """A method's output for one clip when it has magnitudes behind its waveform."""
+
+    binaural: np.ndarray  # [2, T]
+    magnitudes: np.ndarray  # [2, F, N_t], the predicted ear magnitudes the waveform was made from
+
+
+Method = Callable[[AudioClip, RWAVSScene], "np.ndarray | torch.Tensor | Prediction"]
+METRICS = ("MAG", "ENV", "ILD", "MAGp")
 CKPT_PREFIX = "ckpt:"
 
 
@@ -40,13 +56,13 @@ class CheckpointMethod:
     its yaw to degrees, the renderer's public convention (ARCHITECTURE.md).
     """
 
-    def __init__(self, path: str | Path, device: str = "cpu"):
+    def __init__(self, path: str | Path, device: str = "cpu", synthesis: SynthesisConfig | None = None):
         self.path = Path(path)
         if not self.path.is_file():
             raise FileNotFoundError(f"{self.path}: checkpoint missing")
         from avgs.inference import SceneRenderer  # heavy, and only needed here
 
-        self.renderer = SceneRenderer.load(self.path, device=device)
+        self.renderer = SceneRenderer.load(self.path, device=device, synthesis=synthesis)
 
     @property
     def scene_name(self) -> str | None:
@@ -60,24 +76,26 @@ class CheckpointMethod:
     def applies_to(self, scene: RWAVSScene) -> bool:
         return self.scene_name is None or self.scene_name == scene.name
 
-    def __call__(self, clip: AudioClip, scene: RWAVSScene) -> np.ndarray:
+    def __call__(self, clip: AudioClip, scene: RWAVSScene) -> Prediction:
         listener = scene.frame.to_world(clip.listener)  # [3] world
-        out = self.renderer.render(listener=tuple(float(v) for v in listener), yaw=math.degrees(clip.yaw), mono=clip.mono)
-        return out.binaural
+        out = self.renderer.render(
+            listener=tuple(float(v) for v in listener), yaw=math.degrees(clip.yaw), mono=clip.mono, magnitudes=True
+        )
+        return Prediction(out.binaural, out.magnitudes)
 
 
 class CheckpointSetMethod:
     """A folder of checkpoints, one per scene, as one method: each scores the scene it was
     trained on (``ckpt:DIR`` on the command line, e.g. one run of ``avgs train`` per scene)."""
 
-    def __init__(self, folder: str | Path, device: str = "cpu"):
+    def __init__(self, folder: str | Path, device: str = "cpu", synthesis: SynthesisConfig | None = None):
         self.folder = Path(folder)
         paths = sorted(self.folder.glob("*.ckpt"))
         if not paths:
             raise FileNotFoundError(f"{self.folder}: no *.ckpt files in this folder")
         self.by_scene: dict[str, CheckpointMethod] = {}
         for path in paths:
-            method = CheckpointMethod(path, device=device)
+            method = CheckpointMethod(path, device=device, synthesis=synthesis)
             name = method.scene_name or path.stem
             if name in self.by_scene:
                 raise ValueError(f"{self.folder}: two checkpoints for scene {name!r} ({self.by_scene[name].path.name}, {path.name})")
@@ -86,7 +104,7 @@ class CheckpointSetMethod:
     def applies_to(self, scene: RWAVSScene) -> bool:
         return scene.name in self.by_scene
 
-    def __call__(self, clip: AudioClip, scene: RWAVSScene) -> np.ndarray:
+    def __call__(self, clip: AudioClip, scene: RWAVSScene) -> Prediction:
         return self.by_scene[scene.name](clip, scene)
 
 
@@ -95,13 +113,14 @@ def method_names() -> list[str]:
     return [*BASELINES, f"{CKPT_PREFIX}PATH", f"{CKPT_PREFIX}DIR"]
 
 
-def load_method(spec: str, device: str = "cpu") -> Method:
-    """A method from its command-line name: a baseline, ``ckpt:PATH`` or ``ckpt:DIR``."""
+def load_method(spec: str, device: str = "cpu", synthesis: SynthesisConfig | None = None) -> Method:
+    """A method from its command-line name: a baseline, ``ckpt:PATH`` or ``ckpt:DIR``
+    (``synthesis``: how checkpoints make their waveforms, default :class:`SynthesisConfig`)."""
     if spec.startswith(CKPT_PREFIX):
         path = Path(spec[len(CKPT_PREFIX) :])
         if path.is_dir():
-            return CheckpointSetMethod(path, device=device)
-        return CheckpointMethod(path, device=device)
+            return CheckpointSetMethod(path, device=device, synthesis=synthesis)
+        return CheckpointMethod(path, device=device, synthesis=synthesis)
     if spec in BASELINES:
         return BASELINES[spec]
     raise ValueError(f"unknown method {spec!r}; expected one of {', '.join(method_names())}")
@@ -138,30 +157,48 @@ def environment_of(scene: RWAVSScene) -> str:
     return prefix or scene.name
 
 
-def predict(method: Method, clip: AudioClip, scene: RWAVSScene, name: str = "method") -> np.ndarray:
-    """Run ``method`` on one clip and check its output is ``[2, T]`` and finite-typed."""
+def predict(method: Method, clip: AudioClip, scene: RWAVSScene, name: str = "method") -> Prediction:
+    """Run ``method`` on one clip and check its waveform is ``[2, T]``.
+
+    The magnitudes of a method that returns only a waveform are its waveform's STFT
+    magnitudes; a method's own magnitudes must have the shape of the clip's STFT.
+    """
     out = method(clip, scene)
-    if isinstance(out, torch.Tensor):
-        out = out.detach().cpu().numpy()
-    out = np.asarray(out, dtype=np.float32)
-    if out.shape != clip.binaural.shape:
-        raise ValueError(f"{name} returned {out.shape} for {scene.name} t={clip.time:g}s; expected {clip.binaural.shape}")
-    return out
+    mags = None
+    if isinstance(out, Prediction):
+        out, mags = out
+    wave = _float32(out)
+    if wave.shape != clip.binaural.shape:
+        raise ValueError(f"{name} returned {wave.shape} for {scene.name} t={clip.time:g}s; expected {clip.binaural.shape}")
+    if mags is None:
+        mags = dsp.magnitude(torch.from_numpy(wave.astype(np.float64))).numpy()  # as metrics.mag computes it
+    mags = mags.detach().cpu().numpy() if isinstance(mags, torch.Tensor) else np.asarray(mags, dtype=np.float64)
+    expected = (2, STFT.n_freq, dsp.n_frames(wave.shape[-1]))
+    if mags.shape != expected:
+        raise ValueError(f"{name} returned magnitudes {mags.shape} for {scene.name} t={clip.time:g}s; expected {expected}")
+    return Prediction(wave, mags)
+
+
+def _float32(x) -> np.ndarray:
+    if isinstance(x, torch.Tensor):
+        x = x.detach().cpu().numpy()
+    return np.asarray(x, dtype=np.float32)
 
 
 def score_scene(
     method: Method, scene: RWAVSScene, name: str = "method", split: str = "val", progress: bool = True
 ) -> dict[str, float]:
-    """Mean MAG, ENV and ILD error of ``method`` over the scene's ``split`` clips."""
+    """Mean MAG, ENV, ILD error and MAGp of ``method`` over the scene's ``split`` clips."""
     clips = scene.clips(split)
     if not clips:
         raise ValueError(f"{scene.root}: no {split} clips to evaluate")
     totals = dict.fromkeys(METRICS, 0.0)
     for clip in tqdm(clips, desc=f"{name} / {scene.name}", unit="clip", leave=False, disable=not progress):
-        pred = predict(method, clip, scene, name)
+        pred, mags = predict(method, clip, scene, name)
         totals["MAG"] += metrics.mag(pred, clip.binaural)
         totals["ENV"] += metrics.env(pred, clip.binaural)
         totals["ILD"] += metrics.ild_error(pred, clip.binaural)
+        totals["MAGp"] += metrics.mag_spectrogram(mags, clip.binaural)
     return {k: v / len(clips) for k, v in totals.items()}
 
 
@@ -212,22 +249,21 @@ def evaluate(
 
 
 def format_report(report: dict) -> str:
-    """Plain-text table: one row per scene, per environment and overall; MAG, ENV and ILD
-    error (dB) per method."""
+    """Plain-text table: one row per scene, per environment and overall; MAG, ENV, ILD
+    error (dB) and MAGp per method."""
     names = list(report["methods"])
     label_w = max([len("overall")] + [len(s) + 6 for s in report["environments"]] + [len(e) + 6 for e in report["environments"].values()])
-    col_w = max(24, *(len(n) + 2 for n in names))
+    col_w = max(31, *(len(n) + 2 for n in names))
+    cols = (("MAG", col_w - 22, ".3f"), ("ENV", 8, ".4f"), ("ILD", 6, ".2f"), ("MAGp", 8, ".3f"))
     head1 = " " * label_w + "".join(f"{n:>{col_w}}" for n in names)
-    head2 = " " * label_w + "".join(f"{'MAG':>{col_w - 15}}{'ENV':>9}{'ILD':>6}" for _ in names)
+    head2 = " " * label_w + "".join(f"{c:>{w}}" for c, w, _ in cols) * len(names)
     lines = [f"{report['split']} clips: {sum(report['clips'].values())} in {len(report['clips'])} scene(s)", head1, head2]
 
     def row(label: str, pick) -> str:
         cells = []
         for n in names:
             s = pick(report["methods"][n])
-            cells.append(
-                f"{s['MAG']:>{col_w - 15}.3f}{s['ENV']:>9.4f}{s['ILD']:>6.2f}" if s else f"{'-':>{col_w - 15}}{'-':>9}{'-':>6}"
-            )
+            cells.append("".join(f"{s[c]:>{w}{fmt}}" if s else f"{'-':>{w}}" for c, w, fmt in cols))
         return f"{label:<{label_w}}" + "".join(cells)
 
     for scene_id in report["environments"]:

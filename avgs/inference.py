@@ -25,6 +25,7 @@ import torch
 
 from avgs.acoustics.fast import FastMasks, signed_direction
 from avgs.checkpoint import config_of, load_checkpoint, stft_of
+from avgs.config import SynthesisConfig
 from avgs.data.frame import SceneFrame
 
 MAX_NORMALISED = 1e9
@@ -50,6 +51,7 @@ class RenderResult(MaskResult):
     """:class:`MaskResult` plus the binaural waveform."""
 
     binaural: np.ndarray = None  # [2, T] float32, channel 0 = left ear
+    magnitudes: np.ndarray | None = None  # [2, F, N_t] float32 predicted ear magnitudes; only when asked for
 
 
 @dataclass(frozen=True)
@@ -79,12 +81,17 @@ def _position(value, what: str) -> np.ndarray:
 class SceneRenderer:
     """A trained AV-GS scene, ready to binauralise mono audio for any listener pose."""
 
-    def __init__(self, ckpt: dict, device: str | torch.device = "cpu", path: str | Path | None = None):
+    def __init__(
+        self, ckpt: dict, device: str | torch.device = "cpu", path: str | Path | None = None,
+        synthesis: SynthesisConfig | None = None,
+    ):
         from avgs.acoustics.model import AVGSModel
         from avgs.acoustics.points import AudioPoints
 
         self.path = Path(path) if path is not None else None
         self.device = torch.device(device)
+        self.synthesis = synthesis or SynthesisConfig()
+        "How :meth:`render` makes a waveform of the predicted magnitudes (phase iterations)."
         self.config = config_of(ckpt)
         self.stft = stft_of(ckpt)
         self.frame: SceneFrame = SceneFrame.from_dict(ckpt["frame"])
@@ -117,9 +124,11 @@ class SceneRenderer:
         self._gaussians = self._read_gaussians(ckpt.get("gaussians"))
 
     @classmethod
-    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "SceneRenderer":
+    def load(
+        cls, path: str | Path, device: str | torch.device = "cpu", synthesis: SynthesisConfig | None = None
+    ) -> "SceneRenderer":
         """Load and validate ``scene.ckpt`` (``torch.load(weights_only=True)``)."""
-        return cls(load_checkpoint(path, map_location="cpu"), device=device, path=path)
+        return cls(load_checkpoint(path, map_location="cpu"), device=device, path=path, synthesis=synthesis)
 
     def _read_gaussians(self, g: dict | None) -> GaussianCloud | None:
         if not g:
@@ -226,10 +235,16 @@ class SceneRenderer:
             reverb=None if m.reverb is None else m.reverb.cpu().numpy(),
         )
 
-    def render(self, listener, yaw: float, mono, source=None) -> RenderResult:
-        """Binaural ``[2, T]`` float32 of ``mono [T]`` (any length >= 1) heard at ``listener`` facing ``yaw`` degrees."""
+    def render(self, listener, yaw: float, mono, source=None, magnitudes: bool = False) -> RenderResult:
+        """Binaural ``[2, T]`` float32 of ``mono [T]`` (any length >= 1) heard at ``listener`` facing ``yaw`` degrees.
+
+        With ``magnitudes=True`` the result also holds the predicted ear magnitudes
+        ``[2, F, N_t]`` that the waveform was synthesised from (what AV-NeRF's MAG scores).
+        The waveform is made of them as :attr:`synthesis` says: by default a few fast
+        Griffin-Lim iterations from the source's phase (:class:`avgs.config.SynthesisConfig`).
+        """
         from avgs import dsp
-        from avgs.acoustics.model import binaural_waveform
+        from avgs.acoustics.model import binaural_spectrogram
 
         x = np.asarray(mono, dtype=np.float32)
         if x.ndim == 2 and 1 in x.shape:
@@ -242,16 +257,22 @@ class SceneRenderer:
             m, src_idx, theta = self._masks(listener, yaw, source)
             spec = dsp.stft(torch.from_numpy(x).to(self.device)[None], self.stft)  # [1, F, N_t]
             reverb = None if m.reverb is None else m.reverb[None]  # [1, 2, F]
-            y = binaural_waveform(spec, m.mixture[None], m.difference[None], x.size, self.stft,
-                                  self._model.binauralizer.post_conv, reverb, self._fast.decay)[0]  # [2, T]
+            ears = binaural_spectrogram(spec, m.mixture[None], m.difference[None],
+                                        self._model.binauralizer.post_conv, reverb, self._fast.decay)  # [1, 2, F, N_t]
+            syn = self.synthesis
+            y = dsp.griffin_lim(ears, ears.abs(), x.size, syn.phase_iterations, syn.phase_momentum, self.stft)[0]  # [2, T]
+            mags = np.ascontiguousarray(ears[0].abs().float().cpu().numpy()) if magnitudes else None
             return RenderResult(
-                **self._mask_fields(m, src_idx, theta), binaural=np.ascontiguousarray(y.float().cpu().numpy())
+                **self._mask_fields(m, src_idx, theta), binaural=np.ascontiguousarray(y.float().cpu().numpy()),
+                magnitudes=mags,
             )
 
     def stream(self, listener, yaw: float, source=None):
         """A :class:`avgs.streaming.BinauralStream` for this pose: feed mono blocks, then ``flush()``.
 
-        The concatenated output equals :meth:`render` of the whole input (float rounding).
+        The concatenated output equals :meth:`render` of the whole input (float rounding)
+        made with the source's phase (``SynthesisConfig(phase_iterations=0)``): phase
+        iterations need the whole signal, a stream keeps the source's phase.
         """
         from avgs.streaming import BinauralStream
 

@@ -3,7 +3,13 @@
 Binaural quality (RWAVS, AV-NeRF):
 
 - :func:`mag` : ``2 * mean over [2, F, N] of (|S_pred| - |S_gt|)^2`` on the STFT
-  magnitudes of :mod:`avgs.dsp` (the sum of the two channels' MSE).
+  magnitudes of :mod:`avgs.dsp` (the sum of the two channels' MSE), ``S_pred`` the STFT
+  of the predicted waveform: what a listener hears.
+- :func:`mag_spectrogram` : the same distance with ``|S_pred|`` the magnitudes a model
+  predicted before it made a waveform of them. AV-NeRF's evaluation scores these
+  (its ``Evaluator.update(mag_prd, ...)``). Magnitudes with the source's phase are rarely
+  a consistent STFT, so the waveform's own magnitudes differ from them; for a method
+  that scales the source's STFT (the baselines, the paper's masks) the two agree.
 - :func:`env` : ``sum over channels of RMSE(|hilbert(gt_c)|, |hilbert(pred_c)|)``.
 - :func:`ild_error` (ours, not an anchor's): ``|ILD_pred - ILD_gt|`` in dB, the
   interaural level difference of the whole clip above 1.5 kHz, where level is the
@@ -83,6 +89,23 @@ def mag(pred, gt, stft: STFTConfig = STFT) -> float:
     p_mag = dsp.magnitude(torch.from_numpy(p), stft)  # [..., 2, F, N]
     g_mag = dsp.magnitude(torch.from_numpy(g), stft)
     return float(2.0 * torch.mean((p_mag - g_mag) ** 2))
+
+
+def mag_spectrogram(pred_mag, gt, stft: STFTConfig = STFT) -> float:
+    """MAG of predicted magnitudes ``pred_mag [..., 2, F, N]`` against binaural ``gt [..., 2, T]``.
+
+    ``2 * mean((pred_mag - |S_gt|)^2)``, ``|S_gt|`` the STFT magnitudes of ``gt``; its
+    frames and bins must match ``pred_mag``'s.
+    """
+    p, g = _numpy(pred_mag), _numpy(gt)
+    if g.ndim < 2 or g.shape[-2] != 2:
+        raise ValueError(f"MAG: expected a binaural ground truth [..., 2, T], got {g.shape}")
+    g_mag = dsp.magnitude(torch.from_numpy(g), stft).numpy()  # [..., 2, F, N]
+    if p.shape != g_mag.shape:
+        raise ValueError(f"MAG: predicted magnitudes {p.shape} do not match the ground truth's STFT {g_mag.shape}")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(g))):
+        return math.inf
+    return float(2.0 * np.mean((p - g_mag) ** 2))
 
 
 def envelope(x) -> np.ndarray:

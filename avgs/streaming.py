@@ -204,6 +204,7 @@ class BinauralStream:
 
         from avgs import dsp
         from avgs.acoustics.model import binaural_waveform
+        from avgs.config import SynthesisConfig
 
         if len(x) == 0:
             return np.zeros((2, 0), dtype=np.float32)
@@ -215,6 +216,6 @@ class BinauralStream:
                 decay = torch.from_numpy(self._decay.astype(np.float32))  # [F]
             y = binaural_waveform(
                 spec, torch.from_numpy(self._mixture)[None], torch.from_numpy(self._difference)[None], len(x), self.stft,
-                reverb=reverb, decay=decay,
+                reverb=reverb, decay=decay, synthesis=SynthesisConfig(phase_iterations=0),  # the streamed synthesis
             )[0]
         return y.numpy()

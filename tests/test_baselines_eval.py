@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from avgs import evaluate, metrics
+from avgs import dsp, evaluate, metrics
 from avgs.baselines import BASELINES, mono_energy, mono_mono, oracle_mask, stereo_energy
 from avgs.cli import main
 from avgs.data.rwavs import RWAVSScene
@@ -59,20 +59,28 @@ def test_oracle_mask_recovers_a_known_filter_and_bounds_the_flat_gains(scene):
     right = lfilter([0.3, 0.2], [1.0], clip.mono)  # a gentle low-pass: a gain per frequency (to STFT resolution)
     filtered = type(clip)(clip.time, clip.frame_path, clip.c2w, clip.listener, clip.yaw, clip.mono,
                           np.stack([left, right]).astype(np.float32))
-    out = oracle_mask(filtered, scene)
+    out, mags = oracle_mask(filtered, scene)
     assert out.shape == filtered.binaural.shape and out.dtype == np.float32
     np.testing.assert_allclose(out[0], left, atol=1e-5)
     assert metrics.mag(out, filtered.binaural) < 1e-3 * metrics.mag(mono_mono(filtered), filtered.binaural)
+    # the left ear is the source times 0.5: its masked magnitudes are exact
+    assert mags.shape == (2, 257, 173)
+    np.testing.assert_allclose(mags[0], 0.5 * dsp.magnitude(clip.mono).numpy(), rtol=1e-4, atol=1e-6)  # float32 STFT
     for c in scene.val:
-        assert metrics.mag(oracle_mask(c, scene), c.binaural) <= metrics.mag(stereo_energy(c, scene), c.binaural) + 1e-9
+        out, mags = oracle_mask(c, scene)
+        se = stereo_energy(c, scene)
+        assert metrics.mag(out, c.binaural) <= metrics.mag(se, c.binaural) + 1e-9
+        # least squares per bin: the masked magnitudes themselves beat any flat gain
+        assert metrics.mag_spectrogram(mags, c.binaural) <= metrics.mag(se, c.binaural) + 1e-9
 
 
 def test_a_silent_source_gives_silence(scene):
     clip = scene.val[0]
     silent = type(clip)(clip.time, clip.frame_path, clip.c2w, clip.listener, clip.yaw, np.zeros_like(clip.mono), clip.binaural)
     for method in BASELINES.values():
-        out = method(silent, scene)
+        out, mags = evaluate.predict(method, silent, scene)
         assert np.all(out == 0.0) and np.all(np.isfinite(out))
+        assert np.all(mags == 0.0)
 
 
 def test_baselines_keep_the_papers_order(data_root):
@@ -92,7 +100,7 @@ def test_scene_score_is_the_mean_over_val_clips(scene):
 
 def test_any_callable_is_a_method(scene):
     oracle = lambda clip, scene: clip.binaural  # noqa: E731
-    assert evaluate.score_scene(oracle, scene, progress=False) == {"MAG": 0.0, "ENV": 0.0, "ILD": 0.0}
+    assert evaluate.score_scene(oracle, scene, progress=False) == {"MAG": 0.0, "ENV": 0.0, "ILD": 0.0, "MAGp": 0.0}
     swapped = lambda clip, scene: clip.binaural[::-1]  # noqa: E731  left and right exchanged
     swapped_score = evaluate.score_scene(swapped, scene, progress=False)
     assert swapped_score["MAG"] > 0
@@ -102,6 +110,23 @@ def test_any_callable_is_a_method(scene):
     short = lambda clip, scene: clip.binaural[:, :-1]  # noqa: E731
     with pytest.raises(ValueError, match=r"short returned \(2, 22049\) .* expected \(2, 22050\)"):
         evaluate.score_scene(short, scene, name="short", progress=False)
+
+
+def test_magp_scores_a_methods_own_magnitudes(scene):
+    """A method that returns a Prediction is scored on its magnitudes in MAGp, on its waveform in MAG."""
+    def louder(clip, scene):  # the true waveform, but magnitudes 10 % too loud
+        return evaluate.Prediction(clip.binaural, 1.1 * dsp.magnitude(clip.binaural).numpy())
+
+    score = evaluate.score_scene(louder, scene, progress=False)
+    assert score["MAG"] == 0.0 and score["ILD"] == 0.0
+    expected = np.mean([2 * np.mean((0.1 * dsp.magnitude(c.binaural).numpy()) ** 2) for c in scene.val])
+    assert score["MAGp"] == pytest.approx(expected, rel=1e-5) and expected > 0
+    # a waveform alone is scored on its own STFT: MAGp equals MAG
+    se = evaluate.score_scene(stereo_energy, scene, progress=False)
+    assert se["MAGp"] == pytest.approx(se["MAG"], rel=1e-5)
+    bad = lambda clip, scene: evaluate.Prediction(clip.binaural, np.zeros((2, 257, 10)))  # noqa: E731
+    with pytest.raises(ValueError, match=r"bad returned magnitudes \(2, 257, 10\) .* expected \(2, 257, 173\)"):
+        evaluate.score_scene(bad, scene, name="bad", progress=False)
 
 
 def test_environment_rule(data_root):
@@ -129,7 +154,7 @@ def test_cli_prints_tables_and_writes_json(data_root, tmp_path, capsys):
     for name, result in report["methods"].items():
         assert set(result["scenes"]) == {"7", "garden-1", "office_1", "office_2"}
         for score in result["scenes"].values():
-            assert set(score) == {"MAG", "ENV", "ILD"} and all(np.isfinite(list(score.values())))
+            assert set(score) == {"MAG", "ENV", "ILD", "MAGp"} and all(np.isfinite(list(score.values())))
         office = np.mean([result["scenes"][s]["MAG"] for s in ("office_1", "office_2")])
         assert result["environments"]["office"]["MAG"] == pytest.approx(office)
         expected = np.mean([office, result["scenes"]["garden-1"]["MAG"], result["scenes"]["7"]["MAG"]])

@@ -56,3 +56,52 @@ def test_window_cached_under_inference_mode_still_works_with_autograd():
     x = torch.randn(1000, requires_grad=True)
     dsp.stft(x).abs().sum().backward()
     assert torch.isfinite(x.grad).all()
+
+
+def _inconsistency(y: torch.Tensor, target: torch.Tensor) -> float:
+    return float(torch.linalg.vector_norm(dsp.magnitude(y) - target) / torch.linalg.vector_norm(target))
+
+
+def test_griffin_lim_keeps_a_consistent_spectrogram():
+    """A true STFT is a fixed point: its own magnitudes and phase give the signal back."""
+    x = torch.from_numpy(np.random.default_rng(0).standard_normal((2, 7000)).astype(np.float32))
+    spec = dsp.stft(x)
+    y = dsp.griffin_lim(spec, spec.abs(), 7000, iterations=8)
+    assert torch.allclose(y, x, atol=1e-4)
+
+
+def test_griffin_lim_brings_the_waveform_to_the_target_magnitudes():
+    """Magnitudes reshaped in time (not a consistent STFT) with the original phase: each
+    round of iterations brings the waveform's own magnitudes closer to the target."""
+    x = torch.from_numpy(np.random.default_rng(1).standard_normal(22050).astype(np.float32))
+    spec = dsp.stft(x)
+    n = spec.shape[-1]
+    target = spec.abs() * (1.0 + 0.8 * torch.sin(torch.arange(n) / 3.0))  # [F, N], a tremolo of 6 frames
+    start = target * spec / spec.abs()
+    errors = [_inconsistency(dsp.griffin_lim(start, target, 22050, k), target) for k in (0, 2, 8, 32)]
+    assert errors[0] > 0.05  # the plain iSTFT is 6-7 % off its target here
+    assert errors[0] > errors[1] > errors[2] > errors[3]
+    assert errors[2] < 0.85 * errors[0]
+    plain = [_inconsistency(dsp.griffin_lim(start, target, 22050, 8, momentum=m), target) for m in (0.0, 0.99)]
+    assert plain[1] < plain[0]  # momentum (fast Griffin-Lim) converges faster
+
+
+@pytest.mark.parametrize("length", [300 * 128, 66167])
+def test_griffin_lim_in_blocks_equals_one_pass(length):
+    """Blocks with a margin of the iterations' reach give the one-pass waveform."""
+    x = torch.from_numpy(np.random.default_rng(2).standard_normal((2, length)).astype(np.float32))
+    spec = dsp.stft(x)
+    target = spec.abs() * torch.linspace(0.2, 1.5, spec.shape[-2])[:, None]
+    start = target * torch.exp(1j * torch.from_numpy(np.random.default_rng(3).uniform(0, 6, spec.shape)).float())
+    one = dsp.griffin_lim(start, target, length, 8, block_frames=10**9)
+    for block in (16, 70):
+        blocked = dsp.griffin_lim(start, target, length, 8, block_frames=block)
+        assert torch.allclose(blocked, one, atol=1e-5 * float(one.abs().max()))
+    assert torch.equal(dsp.griffin_lim(start, target, length, 0), dsp.istft(start, length))
+
+
+def test_griffin_lim_rejects_bad_settings():
+    spec = dsp.stft(torch.zeros(1000))
+    for iterations, momentum in ((-1, 0.5), (4, 1.0), (4, -0.1)):
+        with pytest.raises(ValueError, match="iterations >= 0 and momentum in"):
+            dsp.griffin_lim(spec, spec.abs(), 1000, iterations, momentum)

@@ -19,9 +19,11 @@ from avgs.acoustics.reverb_tail import (
     tail_power_recursive,
 )
 from avgs.checkpoint import untrained_checkpoint
-from avgs.config import STFT, TrainConfig
+from avgs.config import STFT, SynthesisConfig, TrainConfig
 from avgs.data.frame import SceneFrame
 from avgs.inference import SceneRenderer
+
+SOURCE_PHASE = SynthesisConfig(phase_iterations=0)
 
 HOP_S = STFT.hop_length / STFT.sample_rate
 
@@ -144,7 +146,7 @@ def tail_renderer():
     state["reverb.head.weight"] = torch.randn(state["reverb.head.weight"].shape, generator=g) * 0.3
     state["reverb.head.bias"] = torch.full((2,), -0.5)
     state["reverb.log_rt60"] = torch.log(torch.linspace(0.2, 0.8, 257))
-    return SceneRenderer(ckpt)
+    return SceneRenderer(ckpt, synthesis=SOURCE_PHASE)  # a stream keeps the source phase: compare like with like
 
 
 def test_renderer_reports_the_tail(tail_renderer):

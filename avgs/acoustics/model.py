@@ -16,7 +16,7 @@ from avgs.acoustics.field import AcousticField
 from avgs.acoustics.points import AudioPoints
 from avgs.acoustics.reverb_tail import ear_magnitudes, fill_phase, tail_power
 from avgs.acoustics.vicinity import nearest_indices, vicinity_size
-from avgs.config import STFT, AcousticConfig
+from avgs.config import STFT, AcousticConfig, SynthesisConfig
 
 
 def signed_direction(listener: torch.Tensor, yaw: torch.Tensor, source: torch.Tensor) -> torch.Tensor:
@@ -149,27 +149,26 @@ class AVGSModel(nn.Module):
         return (s_m, s_l, s_r), m
 
 
-def binaural_waveform(
-    mono_stft: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor, length: int, stft=STFT, post_conv=None,
+def binaural_spectrogram(
+    mono_stft: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor, post_conv=None,
     reverb: torch.Tensor | None = None, decay: torch.Tensor | None = None,
-):
-    """iSTFT of the predicted ear magnitudes with the source phase.
+) -> torch.Tensor:
+    """The predicted complex spectrogram of both ears: the ear magnitudes with the source phase.
 
-    mono_stft: [B, F, N_t] complex; masks [B, F] -> [B, 2, length] (channel 0 = left).
-    ``post_conv``: the binauralizer's :class:`~avgs.acoustics.post_conv.PostConv`, or None.
-    ``reverb`` [B, 2, F] gains and ``decay`` [F] (:meth:`ReverbTail.decay
-    <avgs.acoustics.reverb_tail.ReverbTail.decay>`): the reverberant tail, or both None.
+    mono_stft: [B, F, N_t] complex; masks [B, F] -> [B, 2, F, N_t] complex (channel 0 = left).
+    Its magnitudes are what B is trained to match (:meth:`AVGSModel.forward`), and what
+    AV-NeRF's evaluation scores (``avgs.metrics.mag_spectrogram``). ``post_conv``: the
+    binauralizer's :class:`~avgs.acoustics.post_conv.PostConv`, or None. ``reverb`` [B, 2, F]
+    gains and ``decay`` [F] (:meth:`ReverbTail.decay <avgs.acoustics.reverb_tail.ReverbTail.decay>`):
+    the reverberant tail, or both None.
     """
-    from avgs import dsp
-
     if (reverb is None) != (decay is None):
-        raise ValueError("binaural_waveform: pass both the reverberant gains and the decay, or neither")
+        raise ValueError("binaural_spectrogram: pass both the reverberant gains and the decay, or neither")
     if post_conv is None and reverb is None:
         # |S| m e^{i phase(S)} = S m: the masks scale the source spectrum, keeping its phase.
         gain_l = mixture * (1.0 + difference)  # [B, F]
         gain_r = mixture * (1.0 - difference)  # [B, F]
-        spec = mono_stft[:, None] * torch.stack([gain_l, gain_r], dim=1)[..., None]  # [B, 2, F, N_t]
-        return dsp.istft(spec, length, stft)
+        return mono_stft[:, None] * torch.stack([gain_l, gain_r], dim=1)[..., None]  # [B, 2, F, N_t]
     mag = mono_stft.abs()  # [B, F, N_t]
     power = tail_power(mag, decay) if decay is not None else None  # [B, F, N_t]
     _, s_l, s_r = ear_magnitudes(mag, mixture, difference, reverb, power)
@@ -181,5 +180,23 @@ def binaural_waveform(
     if decay is not None and bool((mag == 0).any()):
         silent = fill_phase(mag.shape[-2], 0, mag.shape[-1], mag.device).to(mono_stft.dtype).expand_as(mono_stft)
     phase = torch.where(mag > 0, mono_stft / mag.clamp_min(torch.finfo(mag.dtype).tiny), silent)
-    spec = torch.stack([s_l, s_r], dim=1) * phase[:, None]  # [B, 2, F, N_t]
-    return dsp.istft(spec, length, stft)
+    return torch.stack([s_l, s_r], dim=1) * phase[:, None]  # [B, 2, F, N_t]
+
+
+def binaural_waveform(
+    mono_stft: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor, length: int, stft=STFT, post_conv=None,
+    reverb: torch.Tensor | None = None, decay: torch.Tensor | None = None, synthesis: SynthesisConfig | None = None,
+):
+    """The waveform of :func:`binaural_spectrogram`: [B, 2, length] (channel 0 = left).
+
+    The predicted magnitudes with the source phase are rarely a consistent STFT, so their
+    plain iSTFT has a spectrogram blurred away from them. ``synthesis``
+    (:class:`~avgs.config.SynthesisConfig`; None = its defaults) sets the fast Griffin-Lim
+    iterations that restore them, starting from the source phase; 0 iterations is the
+    plain iSTFT, the paper's synthesis (and the streaming one, :mod:`avgs.streaming`).
+    """
+    from avgs import dsp
+
+    synthesis = synthesis or SynthesisConfig()
+    spec = binaural_spectrogram(mono_stft, mixture, difference, post_conv, reverb, decay)  # [B, 2, F, N_t]
+    return dsp.griffin_lim(spec, spec.abs(), length, synthesis.phase_iterations, synthesis.phase_momentum, stft)

@@ -82,9 +82,9 @@ def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
             mix, diff, reverb = run("binauralizer", lambda: fast.binauralize(lis[:2], theta, ctx))
             spec = run("stft", lambda: dsp.stft(x.to(dev)[None], renderer.stft))
             reverb = None if reverb is None else reverb[None]  # [1, 2, F]
-            # masks (and the reverberant tail, if any) applied, then the inverse STFT
+            # masks (and the reverberant tail, if any) applied, then the inverse STFT and the phase iterations
             run("synthesis", lambda: binaural_waveform(spec, mix[None], diff[None], mono.size, renderer.stft,
-                                                       reverb=reverb, decay=fast.decay).cpu())
+                                                       reverb=reverb, decay=fast.decay, synthesis=renderer.synthesis).cpu())
     return sw.timings()
 
 

@@ -52,7 +52,7 @@ class PreviousPath:
             m = self.model.masks(lis, theta, src, cached_source=self.cached)
             spec = dsp.stft(torch.from_numpy(mono).to(self.r.device)[None], self.r.stft)
             y = binaural_waveform(spec, m.mixture, m.difference, mono.size, self.r.stft,
-                                  reverb=m.reverb, decay=_decay(self.model))[0]
+                                  reverb=m.reverb, decay=_decay(self.model), synthesis=self.r.synthesis)[0]
             return y.float().cpu().numpy()
 
 
@@ -88,5 +88,5 @@ class NaivePath:
             reverb = None if out.reverb is None else out.reverb.detach()
             spec = dsp.stft(torch.from_numpy(mono).to(self.r.device)[None], self.r.stft)
             y = binaural_waveform(spec, out.mixture.detach(), out.difference.detach(), mono.size, self.r.stft,
-                                  reverb=reverb, decay=_decay(self.model))[0]
+                                  reverb=reverb, decay=_decay(self.model), synthesis=self.r.synthesis)[0]
             return y.detach().float().cpu().numpy()

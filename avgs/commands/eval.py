@@ -1,4 +1,4 @@
-"""``avgs eval DATA_ROOT``: MAG, ENV and ILD error of baselines and checkpoints on the val clips.
+"""``avgs eval DATA_ROOT``: MAG, ENV, ILD error and MAGp of baselines and checkpoints on the val clips.
 
 Prints a table per scene, per environment and overall (mean of the environment means,
 as RWAVS); ``--json`` writes the same numbers. A scene's environment comes from its
@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 
 from avgs.baselines import BASELINES
+from avgs.config import SynthesisConfig, field_help
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,22 +19,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--method",
         action="append",
         metavar="NAME",
-        help=f"Method to score, repeatable: {', '.join(BASELINES)} or ckpt:PATH (default: the three baselines).",
+        help=f"Method to score, repeatable: {', '.join(BASELINES)} or ckpt:PATH (default: the baselines).",
     )
     parser.add_argument("--scene", action="append", metavar="ID", help="Scene folder name, repeatable (default: every scene).")
     parser.add_argument("--json", metavar="OUT.json", help="Also write the scores as JSON (atomically).")
     parser.add_argument("--split", choices=("val", "train"), default="val", help="Clips to score (default: val).")
     parser.add_argument("--device", default="cpu", help="Torch device for checkpoints (cpu or cuda).")
+    parser.add_argument("--phase-iterations", type=int, metavar="N",
+                        help="Checkpoints: " + field_help(SynthesisConfig, "phase_iterations") + f" Default {SynthesisConfig.phase_iterations}.")
     parser.add_argument("--no-progress", action="store_true", help="Hide the progress bars.")
 
 
 def run(args: argparse.Namespace) -> int:
     from avgs import evaluate
     from avgs.atomic import write_json
+    from avgs.commands.render import synthesis_of
 
     specs = list(dict.fromkeys(args.method or BASELINES))
     scene_dirs = evaluate.find_scenes(args.data_root, args.scene)
-    methods = {spec: evaluate.load_method(spec, device=args.device) for spec in specs}
+    synthesis = synthesis_of(args)
+    methods = {spec: evaluate.load_method(spec, device=args.device, synthesis=synthesis) for spec in specs}
     report = evaluate.evaluate(methods, scene_dirs, split=args.split, progress=not args.no_progress)
     print(evaluate.format_report(report))
     if args.json:

@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from avgs.config import SynthesisConfig, field_help
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", metavar="scene.ckpt", help="Checkpoint written by 'avgs train'.")
@@ -15,6 +17,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--input", required=True, metavar="mono.wav", help="Input audio, any length; stereo is down-mixed.")
     parser.add_argument("--output", required=True, metavar="out.wav", help="Binaural output (2 channels, float WAV).")
     parser.add_argument("--device", default="cpu", help="Torch device (cpu or cuda).")
+    parser.add_argument("--phase-iterations", type=int, metavar="N",
+                        help=field_help(SynthesisConfig, "phase_iterations") + f" Default {SynthesisConfig.phase_iterations}.")
 
 
 def read_mono(path: str | Path, sample_rate: int):
@@ -43,11 +47,20 @@ def read_mono(path: str | Path, sample_rate: int):
     return x
 
 
+def synthesis_of(args: argparse.Namespace) -> SynthesisConfig:
+    """The :class:`SynthesisConfig` that ``--phase-iterations`` asks for (defaults otherwise)."""
+    if args.phase_iterations is None:
+        return SynthesisConfig()
+    if args.phase_iterations < 0:
+        raise ValueError(f"--phase-iterations must be >= 0, got {args.phase_iterations}")
+    return SynthesisConfig(phase_iterations=args.phase_iterations)
+
+
 def run(args: argparse.Namespace) -> int:
     from avgs.atomic import write_wav
     from avgs.inference import SceneRenderer
 
-    renderer = SceneRenderer.load(args.checkpoint, device=args.device)
+    renderer = SceneRenderer.load(args.checkpoint, device=args.device, synthesis=synthesis_of(args))
     mono = read_mono(args.input, renderer.sample_rate)
     out = renderer.render(args.listener, args.yaw, mono, source=args.source)
     write_wav(args.output, out.binaural, renderer.sample_rate)

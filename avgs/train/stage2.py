@@ -108,7 +108,8 @@ class Stage2Trainer:
 
     @torch.no_grad()
     def predict(self, data, chunk: int = 16) -> torch.Tensor:
-        """Binaural waveforms [C, 2, T] for every clip of ``data`` (a ClipDataset)."""
+        """Binaural waveforms [C, 2, T] for every clip of ``data`` (a ClipDataset), synthesised as
+        :meth:`avgs.inference.SceneRenderer.render` does by default, so ``val_mag`` is ``avgs eval``'s MAG."""
         self.model.eval()
         source = data.source.to(self.device)
         cached = self.model.source_context(source)
