@@ -74,7 +74,7 @@ def main() -> None:
     probe_true = np.array([float(metrics.ild(t)) for _, _, t in probes])
     for path in args.checkpoints:
         method = CheckpointMethod(path)  # as `avgs eval` renders a clip
-        val_pred = np.array([float(metrics.ild(method(c, scene))) for c in clips])
+        val_pred = np.array([float(metrics.ild(method(c, scene).binaural)) for c in clips])
         print(f"{path}\n  val clips  {summary(val_pred, val_true)}")
         if probes:
             probe_pred = np.array([

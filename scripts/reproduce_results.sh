@@ -56,12 +56,12 @@ done
 ab() { name=$1; shift; train office_0 runs/ablation/$name/office_0.ckpt --iterations 2000 "$@"; }
 ab sfm --init sfm; ab no-pm --no-point-management; ab masks --no-reverb-tail
 for v in 5 10 25; do ab vic$v --vicinity-percentile $v; done
+train office_0 runs/conv/office_0.ckpt --iterations 2000 --post-conv   # AV-NeRF's conv head
 wait
 
 $A eval data/presets --method mono-mono --method mono-energy --method stereo-energy --method oracle-mask \
   --method ckpt:runs/main/nocontext --method ckpt:runs/main/avgs --json runs/main/eval.json --no-progress
 $A eval data/presets --method stereo-energy --method ckpt:runs/features/old/nocontext --method ckpt:runs/features/old/avgs \
   --method ckpt:runs/features/new/nocontext --method ckpt:runs/features/new/avgs --json runs/features/eval.json --no-progress
-for d in runs/main/avgs runs/main/nocontext runs/ablation/*; do
-  echo "$d $(grep '"final"' $d/office_0.ckpt.log.jsonl)"
-done
+AB=""; for d in runs/main/avgs runs/main/nocontext runs/ablation/* runs/conv; do AB="$AB --method ckpt:$d/office_0.ckpt"; done
+$A eval data/presets --scene office_0 --method stereo-energy $AB --json runs/ablation/eval.json --no-progress
