@@ -5,6 +5,7 @@ generate one synthetic scene with physical ground truth in the RWAVS layout
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 from avgs.config import field_help
 
@@ -25,6 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--width", type=int, metavar="PX", help=field_help(SynthConfig, "width") + " (default 256; 64 with --quick)")
     parser.add_argument("--height", type=int, metavar="PX", help=field_help(SynthConfig, "height") + " (default 192; 48 with --quick)")
     parser.add_argument("--fov", type=float, metavar="DEG", help=field_help(SynthConfig, "fov_deg") + " (default 70)")
+    parser.add_argument("--raw-hrtf", action="store_true",
+                        help="Keep the KEMAR head's own response instead of diffuse-field equalising it "
+                             "(the ears' colouration stays in the audio, as in a binaural recording).")
     parser.add_argument("--no-progress", action="store_true", help="Hide the progress bar.")
 
 
@@ -45,6 +49,8 @@ def config_from_args(args: argparse.Namespace):
     if not 1.0 <= cfg.fov_deg <= 170.0:
         raise ValueError(f"--fov must be in [1, 170] degrees, got {cfg.fov_deg}")
     cfg.split_sizes()  # validates --poses and --val-fraction
+    if args.raw_hrtf:
+        cfg.sim = dataclasses.replace(cfg.sim, hrtf_equalised=False)
     return cfg
 
 

@@ -146,11 +146,11 @@ def kemar(sample_rate: int = 22050, equalised: bool = True) -> HRIRSet:
     return HRIRSet(irs, native.azimuth_deg, native.elevation_deg, int(sample_rate))
 
 
-def pra_file_reader(sample_rate: int):
+def pra_file_reader(sample_rate: int, equalised: bool = True):
     """A ``file_reader_callback`` for ``pyroomacoustics.directivities.MeasuredDirectivityFile``
-    that serves the KEMAR set: IRs ``(n_directions, n_ears, taps)``, directions as
-    (azimuth, colatitude, distance) in radians, ears labelled ``left`` / ``right``."""
-    hrirs = kemar(sample_rate)
+    that serves the KEMAR set (:func:`kemar`): IRs ``(n_directions, n_ears, taps)``, directions
+    as (azimuth, colatitude, distance) in radians, ears labelled ``left`` / ``right``."""
+    hrirs = kemar(sample_rate, equalised)
     directions = np.stack(
         [np.radians(hrirs.azimuth_deg), np.radians(90.0 - hrirs.elevation_deg), np.ones_like(hrirs.azimuth_deg)]
     )  # [3, D]

@@ -61,6 +61,8 @@ class SimSettings:
     "Output sample rate in Hz."
     seed: int = 0
     "Base seed of the simulator's random generator (mixed with the pose)."
+    hrtf_equalised: bool = True
+    "Diffuse-field equalise the KEMAR head, as binaural renderers do; False keeps the dummy head's own ear and pinna colouration, as a binaural recording has it."
 
     @classmethod
     def quick(cls) -> "SimSettings":
@@ -86,18 +88,21 @@ _HEAD: dict[int, tuple] = {}
 _HEAD_LOCK = threading.Lock()
 
 
-def ear_directivities(sample_rate: int = SAMPLE_RATE) -> tuple:
-    """The (left, right) KEMAR ``MeasuredDirectivity`` facing +x, built once per process."""
+def ear_directivities(sample_rate: int = SAMPLE_RATE, equalised: bool = True) -> tuple:
+    """The (left, right) KEMAR ``MeasuredDirectivity`` facing +x, built once per process
+    (diffuse-field equalised unless ``equalised=False``)."""
+    key = (int(sample_rate), bool(equalised))
     with _HEAD_LOCK:
-        if sample_rate not in _HEAD:
+        if key not in _HEAD:
             from pyroomacoustics.directivities import MeasuredDirectivityFile, Rotation3D
 
             from avgs.data.synth.hrtf import pra_file_reader
 
-            hrtf = MeasuredDirectivityFile("mit_kemar_normal_pinna", fs=sample_rate, file_reader_callback=pra_file_reader(sample_rate))
+            reader = pra_file_reader(sample_rate, equalised)
+            hrtf = MeasuredDirectivityFile("mit_kemar_normal_pinna", fs=sample_rate, file_reader_callback=reader)
             facing = Rotation3D([0.0], "z", degrees=True)
-            _HEAD[sample_rate] = (hrtf.get_mic_directivity("left", facing), hrtf.get_mic_directivity("right", facing))
-        return _HEAD[sample_rate]
+            _HEAD[key] = (hrtf.get_mic_directivity("left", facing), hrtf.get_mic_directivity("right", facing))
+        return _HEAD[key]
 
 
 def _turned(directivity, yaw_deg: float):
@@ -172,7 +177,7 @@ def binaural_rirs(spec: SceneSpec, listener: np.ndarray, yaw_deg: float, setting
     if not room.is_inside(listener):
         raise ValueError(f"{spec.preset}: listener {listener.tolist()} is outside the room (or inside furniture)")
     room.add_source(np.asarray(spec.source, dtype=np.float64))
-    left, right = ear_directivities(settings.sample_rate)
+    left, right = ear_directivities(settings.sample_rate, settings.hrtf_equalised)
     mics = np.stack([listener, listener], axis=1)  # [3, 2] both ears at the head centre
     room.add_microphone_array(
         pra.MicrophoneArray(mics, settings.sample_rate, directivity=[_turned(left, yaw_deg), _turned(right, yaw_deg)])

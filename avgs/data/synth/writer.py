@@ -111,7 +111,7 @@ _JOB: dict = {}
 
 def _init_worker(spec: SceneSpec, poses: list[Pose], settings: SimSettings) -> None:
     _JOB.update(spec=spec, poses=poses, settings=settings)
-    ear_directivities(settings.sample_rate)  # built once per process (inherited when forked)
+    ear_directivities(settings.sample_rate, settings.hrtf_equalised)  # built once per process (inherited when forked)
 
 
 def _simulate_pose(i: int) -> tuple[int, np.ndarray, float]:
@@ -128,7 +128,7 @@ def simulate_poses(spec: SceneSpec, poses: list[Pose], settings: SimSettings, wo
     rirs: list = [None] * len(poses)
     times = [0.0] * len(poses)
     bar = tqdm(total=len(poses), desc=f"simulating {spec.preset}", unit="pose", disable=not progress)
-    ear_directivities(settings.sample_rate)  # before forking, so that workers inherit the head
+    ear_directivities(settings.sample_rate, settings.hrtf_equalised)  # before forking, so that workers inherit the head
     workers = max(1, min(int(workers), len(poses)))
     if workers == 1:
         _init_worker(spec, poses, settings)
@@ -386,7 +386,9 @@ def _scene_json(spec, cfg, settings, frame, n_train, n_val, rt60, poses) -> dict
         "materials": {m: material_record(m) for m in materials},
         "simulation": settings.to_dict(),
         "simulator": _simulator_versions(),
-        "hrtf": "MIT KEMAR normal pinna (Gardner & Martin 1994), from the slab package, diffuse-field equalised; both ears at the head centre",
+        "hrtf": "MIT KEMAR normal pinna (Gardner & Martin 1994), from the slab package, "
+        + ("diffuse-field equalised" if settings.hrtf_equalised else "not equalised (the head's own response)")
+        + "; both ears at the head centre",
         "rt60": rt60,
         "signals": {"train": "speech", "val": "music", "sample_rate": settings.sample_rate},
         "frames": {"train": [1, n_train], "val": [n_train + 1, n_train + n_val]},
