@@ -22,12 +22,13 @@ for p in $PRESETS; do   # 200 train + 50 val poses each (4-9 min per scene on 2 
 done
 
 # One stage-2 run: run SCENE OUT [flags...], skipped when OUT exists; at most JOBS at once.
+# The scene is read from $DATA/SCENE (default data/presets).
 run() {
-  local scene=$1 out=$2; shift 2
+  local scene=$1 out=$2 data=${DATA:-data/presets}; shift 2
   [ -f "$out" ] && return 0
   while [ "$(jobs -rp | wc -l)" -ge "$JOBS" ]; do wait -n; done
   mkdir -p "$(dirname "$out")"
-  $A train data/presets/$scene --out "$out" $COMMON "$@" > "$out.out" 2>&1 &
+  $A train "$data/$scene" --out "$out" $COMMON "$@" > "$out.out" 2>&1 &
 }
 # ... on the scene's shared stage 1.
 train() { run "$1" "$2" --stage1 "runs/stage1/$1.ckpt.stage1.pt" "${@:3}"; }
@@ -59,9 +60,23 @@ for v in 5 10 25; do ab vic$v --vicinity-percentile $v; done
 train office_0 runs/conv/office_0.ckpt --iterations 2000 --post-conv   # AV-NeRF's conv head
 wait
 
+# The same four presets with the raw KEMAR head (--raw-hrtf: the ears' own colouration stays
+# in the audio, as in a binaural recording and in DESIGN's anchor measurement); G_a straight
+# from the geometry (no stage 1), AV-GS and the no-context control.
+for p in office house apartment outdoor; do
+  [ -d data/rawhrtf/${p}_0 ] || $A synth data/rawhrtf --preset $p --scene-id ${p}_0 --poses 250 --seed 0 --raw-hrtf --no-progress
+done
+for p in office house apartment outdoor; do
+  DATA=data/rawhrtf sfm ${p}_0 runs/rawhrtf/avgs/${p}_0.ckpt
+  DATA=data/rawhrtf sfm ${p}_0 runs/rawhrtf/nocontext/${p}_0.ckpt --no-context
+done
+wait
+
 $A eval data/presets --method mono-mono --method mono-energy --method stereo-energy --method oracle-mask \
   --method ckpt:runs/main/nocontext --method ckpt:runs/main/avgs --json runs/main/eval.json --no-progress
 $A eval data/presets --method stereo-energy --method ckpt:runs/features/old/nocontext --method ckpt:runs/features/old/avgs \
   --method ckpt:runs/features/new/nocontext --method ckpt:runs/features/new/avgs --json runs/features/eval.json --no-progress
 AB=""; for d in runs/main/avgs runs/main/nocontext runs/ablation/* runs/conv; do AB="$AB --method ckpt:$d/office_0.ckpt"; done
 $A eval data/presets --scene office_0 --method stereo-energy $AB --json runs/ablation/eval.json --no-progress
+$A eval data/rawhrtf --method mono-mono --method mono-energy --method stereo-energy --method oracle-mask \
+  --method ckpt:runs/rawhrtf/nocontext --method ckpt:runs/rawhrtf/avgs --json runs/rawhrtf/eval.json --no-progress
