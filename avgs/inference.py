@@ -235,13 +235,15 @@ class SceneRenderer:
             reverb=None if m.reverb is None else m.reverb.cpu().numpy(),
         )
 
-    def render(self, listener, yaw: float, mono, source=None, magnitudes: bool = False) -> RenderResult:
+    def render(
+        self, listener, yaw: float, mono, source=None, magnitudes: bool = False, synthesis: SynthesisConfig | None = None
+    ) -> RenderResult:
         """Binaural ``[2, T]`` float32 of ``mono [T]`` (any length >= 1) heard at ``listener`` facing ``yaw`` degrees.
 
         With ``magnitudes=True`` the result also holds the predicted ear magnitudes
         ``[2, F, N_t]`` that the waveform was synthesised from (what AV-NeRF's MAG scores).
-        The waveform is made of them as :attr:`synthesis` says: by default a few fast
-        Griffin-Lim iterations from the source's phase (:class:`avgs.config.SynthesisConfig`).
+        The waveform is made of them as ``synthesis`` says, by default :attr:`synthesis`:
+        a few fast Griffin-Lim iterations from the source's phase (:class:`avgs.config.SynthesisConfig`).
         """
         from avgs import dsp
         from avgs.acoustics.model import binaural_spectrogram
@@ -259,7 +261,7 @@ class SceneRenderer:
             reverb = None if m.reverb is None else m.reverb[None]  # [1, 2, F]
             ears = binaural_spectrogram(spec, m.mixture[None], m.difference[None],
                                         self._model.binauralizer.post_conv, reverb, self._fast.decay)  # [1, 2, F, N_t]
-            syn = self.synthesis
+            syn = self.synthesis if synthesis is None else synthesis
             y = dsp.griffin_lim(ears, ears.abs(), x.size, syn.phase_iterations, syn.phase_momentum, self.stft)[0]  # [2, T]
             mags = np.ascontiguousarray(ears[0].abs().float().cpu().numpy()) if magnitudes else None
             return RenderResult(

@@ -112,7 +112,9 @@ def main(argv: list[str] | None = None) -> int:
             from .bench import run_viewer_bench
 
             r = run_viewer_bench(scene, args.bench, size=tuple(args.size))
-            print(f"drag -> audio live: median {r['latency']['median_ms']:.1f} ms, p95 {r['latency']['p95_ms']:.1f} ms; "
+            lat = r["latency"]
+            refined = f" (refined {lat['refined']['median_ms']:.1f} ms)" if lat.get("refined") else ""
+            print(f"drag -> audio live: median {lat['median_ms']:.1f} ms, p95 {lat['p95_ms']:.1f} ms{refined}; "
                   f"orbit {r['orbit']['fps']:.1f} FPS; wrote {args.bench}")
             return 0
         if args.screenshot is not None or args.audio is not None:

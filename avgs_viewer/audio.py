@@ -114,6 +114,12 @@ class LoopEngine:
         self.block_levels = (SILENCE_DB, SILENCE_DB)  # (left, right) dB of the last output block
 
     # -- control (any thread)
+    @property
+    def has_pending(self) -> bool:
+        """Whether a buffer handed to :meth:`set_buffer` waits to be adopted by the audio thread."""
+        with self._lock:
+            return self._pending is not None
+
     def set_buffer(self, binaural: np.ndarray) -> None:
         """Queue binaural [2, T] audio to be crossfaded in at the current play position."""
         binaural = np.asarray(binaural, dtype=np.float32)

@@ -3,12 +3,16 @@
 The GUI thread never runs the model: it submits the latest pose and goes on. While a
 render runs, newer poses overwrite each other; when it finishes, only the newest is
 rendered next, so a fast drag costs one render per render time, not one per mouse event.
+A pose is first heard as a draft with the source's phase (a few ms); once the user
+stops, the same pose is rendered again with the renderer's phase iterations
+(:class:`avgs.config.SynthesisConfig`) and swapped in.
 No Qt here: results come back through plain callbacks on the worker thread; the window
 forwards them to its own thread with a queued signal.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from dataclasses import dataclass
@@ -50,6 +54,17 @@ class RenderWorker:
                 raise RuntimeError("render worker is closed")
             if self._has_request:
                 self.dropped += 1
+            self.submitted += 1
+            self._request, self._has_request = (self.submitted, request), True
+            self._cond.notify()
+            return self.submitted
+
+    def submit_if_idle(self, request: Any) -> int | None:
+        """Queue ``request`` only if nothing is queued (a newer request always wins); its
+        sequence number, or None when it was not queued."""
+        with self._cond:
+            if self._closed or self._has_request:
+                return None
             self.submitted += 1
             self._request, self._has_request = (self.submitted, request), True
             self._cond.notify()
@@ -110,6 +125,7 @@ class PoseRequest:
     pose: Pose
     clip_id: int
     submitted_at: float
+    draft: bool = False  # with the source's phase, to be refined when no newer pose comes
 
 
 class LiveRender:
@@ -120,6 +136,11 @@ class LiveRender:
     has been handed to the engine (the window forwards it to the GUI thread for the
     vicinity colours and meters). Call :meth:`set_clip` to change the looped clip; its
     tail is crossfaded into its head over ``seam_seconds`` so the loop has no seam.
+
+    When the renderer makes its waveforms with phase iterations (``renderer.synthesis``),
+    each pose is rendered first as a draft without them and then, if no newer pose has
+    come, again with them: a drag answers as fast as the masks, the pose the user stops
+    at sounds as ``render`` makes it.
     """
 
     def __init__(self, renderer: Any, state: ViewerState, engine: LoopEngine, clip: np.ndarray,
@@ -134,6 +155,11 @@ class LiveRender:
         self._seam = int(round(seam_seconds * engine.sample_rate))
         self._clip = self._as_loop(clip)
         self._clip_id = 0
+        synthesis = getattr(renderer, "synthesis", None)
+        self._draft = (
+            dataclasses.replace(synthesis, phase_iterations=0)
+            if synthesis is not None and getattr(synthesis, "phase_iterations", 0) > 0 else None
+        )  # SynthesisConfig of the draft pass, or None: one pass only
         self.last_result: Any = None
         self.last_request: PoseRequest | None = None
         self.worker = RenderWorker(self._render, self._deliver, self._fail)
@@ -158,7 +184,8 @@ class LiveRender:
 
     def request(self) -> int:
         """Render the state's current pose (called on every pose change)."""
-        return self.worker.submit(PoseRequest(self.state.pose, self._clip_id, time.perf_counter()))
+        draft = self._draft is not None
+        return self.worker.submit(PoseRequest(self.state.pose, self._clip_id, time.perf_counter(), draft))
 
     def _pose_changed(self, pose: Pose) -> None:
         self.request()
@@ -166,7 +193,8 @@ class LiveRender:
     def _render(self, request: PoseRequest) -> Any:
         clip = self._clip
         pose = request.pose
-        return self.renderer.render(listener=pose.listener, yaw=pose.yaw, mono=clip, source=pose.source)
+        extra = {"synthesis": self._draft} if request.draft else {}
+        return self.renderer.render(listener=pose.listener, yaw=pose.yaw, mono=clip, source=pose.source, **extra)
 
     def _deliver(self, seq: int, request: PoseRequest, result: Any) -> None:
         if request.clip_id != self._clip_id:
@@ -175,6 +203,8 @@ class LiveRender:
         self.last_result, self.last_request = result, request
         if self._on_result is not None:
             self._on_result(request, result)
+        if request.draft:
+            self.worker.submit_if_idle(dataclasses.replace(request, draft=False))
 
     def _fail(self, seq: int, request: PoseRequest, exc: BaseException) -> None:
         if self._on_error is not None:

@@ -223,6 +223,48 @@ def test_pose_changes_put_the_new_render_in_the_engine(renderer):
         live.close()
 
 
+def test_a_pose_is_heard_first_as_a_draft_then_refined(renderer):
+    """The first buffer after a move is the source-phase render, the next the renderer's own."""
+    from avgs.config import SynthesisConfig
+
+    clip = tone(330.0, 0.3, SR // 2) + tone(1200.0, 0.1, SR // 2)
+    state = ViewerState(renderer.bounds, renderer.source)
+    engine = LoopEngine(renderer.sample_rate)
+    buffers = []
+    live = LiveRender(renderer, state, engine, clip)
+    set_buffer = engine.set_buffer
+    engine.set_buffer = lambda y: (buffers.append(np.array(y)), set_buffer(y))[1]
+    try:
+        state.set_listener((1.0, 1.5, 0.0))
+        assert live.worker.wait_idle(30)
+    finally:
+        live.close()
+    pose = state.pose
+    draft = renderer.render(pose.listener, pose.yaw, live.clip, synthesis=SynthesisConfig(phase_iterations=0)).binaural
+    final = renderer.render(pose.listener, pose.yaw, live.clip).binaural
+    assert len(buffers) == 2 and not np.allclose(draft, final, atol=1e-4)
+    np.testing.assert_allclose(buffers[0], draft, atol=1e-6)
+    np.testing.assert_allclose(buffers[1], final, atol=1e-6)
+    assert not live.last_request.draft
+
+
+def test_a_renderer_without_phase_iterations_renders_once(renderer, tmp_path):
+    from avgs.config import SynthesisConfig
+
+    plain = SceneRenderer.load(renderer.path, synthesis=SynthesisConfig(phase_iterations=0))
+    state = ViewerState(plain.bounds, plain.source)
+    engine = LoopEngine(plain.sample_rate)
+    live = LiveRender(plain, state, engine, tone(330.0, 0.3, SR // 4))
+    try:
+        state.set_listener((1.0, 1.5, 0.0))
+        assert live.worker.wait_idle(30)
+    finally:
+        live.close()
+    assert engine.submitted == 1 and not live.last_request.draft
+
+
 def test_latency_benchmark_reports_median_and_p95(renderer):
     out = drag_to_audio_latency(renderer, n=4, clip=tone(330.0, 0.3, SR // 4))
     assert out["n"] == 4 and 0 < out["median_ms"] <= out["p95_ms"] <= out["max_ms"]
+    refined = out["refined"]  # the renderer refines with phase iterations: a second buffer, later
+    assert refined["n"] == 4 and refined["median_ms"] >= out["median_ms"] and out["draft_render_ms"] > 0
