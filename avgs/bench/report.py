@@ -18,6 +18,7 @@ FAMILY_STYLE = {
     "AV-GS vicinity": ("tab:blue", "o"),
     "AV-GS points": ("tab:cyan", "v"),
     "AV-GS precision": ("tab:purple", "D"),
+    "AV-GS synthesis": ("tab:green", "P"),
     "simulator (image source)": ("tab:orange", "^"),
     "simulator (rays)": ("tab:red", "^"),
 }
