@@ -216,5 +216,7 @@ def test_viewer_bench_command_writes_its_report(room, tmp_path):
                           capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
     assert proc.returncode == 0, proc.stderr
     text = out.read_text()
-    assert "drag end -> new audio live" in text and "orbit" in text and str(len(renderer.points)) in text
+    # the checkpoint renders with phase iterations: a draft first, then the refined audio
+    assert "drag end -> draft audio live" in text and "drag end -> refined audio live" in text
+    assert "orbit" in text and str(len(renderer.points)) in text
     assert "median" in proc.stdout and "FPS" in proc.stdout
