@@ -7,7 +7,9 @@ frame into its spectrum as soon as its samples are in, applies the per-ear gains
 overlap-adds with the same window-envelope division as ``torch.istft``. The centred
 STFT's reflect padding is reproduced at both ends: at the start once 257 samples have
 arrived, at the end in :meth:`flush` (the stream's length is known only then). So the
-concatenation of all outputs equals ``render(...).binaural`` to float rounding.
+concatenation of all outputs equals ``render(...).binaural`` made with the source's phase
+(``SynthesisConfig(phase_iterations=0)``) to float rounding: the phase iterations that
+``render`` runs by default need the whole signal.
 
 A model with a reverberant tail (:mod:`avgs.acoustics.reverb_tail`) is streamed the same
 way: the tail's power is carried from frame to frame by its one-pole recursion, one
