@@ -70,6 +70,13 @@ for p in office house apartment outdoor; do
   DATA=data/rawhrtf sfm ${p}_0 runs/rawhrtf/avgs/${p}_0.ckpt
   DATA=data/rawhrtf sfm ${p}_0 runs/rawhrtf/nocontext/${p}_0.ckpt --no-context
 done
+# Outdoors with the raw head: a second seed at 2000 iterations, and both seeds at 4000.
+DATA=data/rawhrtf sfm outdoor_0 runs/rawhrtf_s1/avgs/outdoor_0.ckpt --seed 1
+DATA=data/rawhrtf sfm outdoor_0 runs/rawhrtf_s1/nocontext/outdoor_0.ckpt --seed 1 --no-context
+for s in 0 1; do
+  DATA=data/rawhrtf sfm outdoor_0 runs/rawhrtf_4k/s$s/outdoor_0.ckpt --iterations 4000 --eval-every 1000 --seed $s
+  DATA=data/rawhrtf sfm outdoor_0 runs/rawhrtf_4k_nc/s$s/outdoor_0.ckpt --iterations 4000 --eval-every 1000 --seed $s --no-context
+done
 wait
 
 $A eval data/presets --method mono-mono --method mono-energy --method stereo-energy --method oracle-mask \
@@ -80,3 +87,5 @@ AB=""; for d in runs/main/avgs runs/main/nocontext runs/ablation/* runs/conv; do
 $A eval data/presets --scene office_0 --method stereo-energy $AB --json runs/ablation/eval.json --no-progress
 $A eval data/rawhrtf --method mono-mono --method mono-energy --method stereo-energy --method oracle-mask \
   --method ckpt:runs/rawhrtf/nocontext --method ckpt:runs/rawhrtf/avgs --json runs/rawhrtf/eval.json --no-progress
+$A eval data/rawhrtf --scene outdoor_0 --method ckpt:runs/rawhrtf_4k/s0/outdoor_0.ckpt --method ckpt:runs/rawhrtf_4k/s1/outdoor_0.ckpt \
+  --method ckpt:runs/rawhrtf_4k_nc/s0/outdoor_0.ckpt --method ckpt:runs/rawhrtf_4k_nc/s1/outdoor_0.ckpt --no-progress
