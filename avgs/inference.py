@@ -246,7 +246,7 @@ class SceneRenderer:
         a few fast Griffin-Lim iterations from the source's phase (:class:`avgs.config.SynthesisConfig`).
         """
         from avgs import dsp
-        from avgs.acoustics.model import binaural_spectrogram
+        from avgs.acoustics.model import binaural_spectrogram, synthesise
 
         x = np.asarray(mono, dtype=np.float32)
         if x.ndim == 2 and 1 in x.shape:
@@ -261,8 +261,7 @@ class SceneRenderer:
             reverb = None if m.reverb is None else m.reverb[None]  # [1, 2, F]
             ears = binaural_spectrogram(spec, m.mixture[None], m.difference[None],
                                         self._model.binauralizer.post_conv, reverb, self._fast.decay)  # [1, 2, F, N_t]
-            syn = self.synthesis if synthesis is None else synthesis
-            y = dsp.griffin_lim(ears, ears.abs(), x.size, syn.phase_iterations, syn.phase_momentum, self.stft)[0]  # [2, T]
+            y = synthesise(ears, x.size, self.stft, self.synthesis if synthesis is None else synthesis)[0]  # [2, T]
             mags = np.ascontiguousarray(ears[0].abs().float().cpu().numpy()) if magnitudes else None
             return RenderResult(
                 **self._mask_fields(m, src_idx, theta), binaural=np.ascontiguousarray(y.float().cpu().numpy()),

@@ -61,7 +61,7 @@ def drag_to_audio_latency(renderer: Any, n: int = 30, clip: np.ndarray | None = 
     clock = threading.Thread(target=audio_clock, name="bench-audio-clock", daemon=True)
     clock.start()
     samples, refined = [], []
-    passes = 2 if live._draft is not None else 1
+    passes = 2 if live.draft_synthesis is not None else 1
     try:
         live.request()
         _wait_all_live(live, engine, timeout_s)
@@ -97,7 +97,7 @@ def drag_to_audio_latency(renderer: Any, n: int = 30, clip: np.ndarray | None = 
         return 1e3 * float(np.median(times))
 
     out.update(clip_s=len(clip) / sr, block_ms=1e3 * block_s, render_ms=render_ms(),
-               draft_render_ms=render_ms(synthesis=live._draft) if passes == 2 else None)
+               draft_render_ms=render_ms(synthesis=live.draft_synthesis) if passes == 2 else None)
     return out
 
 
@@ -121,16 +121,17 @@ def _wait_all_live(live: Any, engine: Any, timeout_s: float) -> None:
     """Until every render is done and the audio thread has adopted the last buffer."""
     if not live.worker.wait_idle(timeout_s):
         raise TimeoutError(f"the render worker did not finish within {timeout_s} s")
-    deadline = time.perf_counter() + timeout_s
-    while engine.has_pending:
-        if time.perf_counter() > deadline:
-            raise TimeoutError(f"the new audio buffer did not go live within {timeout_s} s")
-        time.sleep(0.0005)
+    _wait_until(lambda: not engine.has_pending, timeout_s)
 
 
 def _wait_generation(engine: Any, target: int, timeout_s: float) -> None:
+    _wait_until(lambda: engine.generation >= target, timeout_s)
+
+
+def _wait_until(done, timeout_s: float) -> None:
+    """Poll ``done()`` until it is true; TimeoutError after ``timeout_s``."""
     deadline = time.perf_counter() + timeout_s
-    while engine.generation < target:
+    while not done():
         if time.perf_counter() > deadline:
             raise TimeoutError(f"the new audio buffer did not go live within {timeout_s} s")
         time.sleep(0.0005)

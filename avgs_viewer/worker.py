@@ -156,10 +156,11 @@ class LiveRender:
         self._clip = self._as_loop(clip)
         self._clip_id = 0
         synthesis = getattr(renderer, "synthesis", None)
-        self._draft = (
+        self.draft_synthesis = (
             dataclasses.replace(synthesis, phase_iterations=0)
             if synthesis is not None and getattr(synthesis, "phase_iterations", 0) > 0 else None
-        )  # SynthesisConfig of the draft pass, or None: one pass only
+        )
+        "SynthesisConfig of the draft pass (no phase iterations), or None: one pass per pose."
         self.last_result: Any = None
         self.last_request: PoseRequest | None = None
         self.worker = RenderWorker(self._render, self._deliver, self._fail)
@@ -184,7 +185,7 @@ class LiveRender:
 
     def request(self) -> int:
         """Render the state's current pose (called on every pose change)."""
-        draft = self._draft is not None
+        draft = self.draft_synthesis is not None
         return self.worker.submit(PoseRequest(self.state.pose, self._clip_id, time.perf_counter(), draft))
 
     def _pose_changed(self, pose: Pose) -> None:
@@ -193,7 +194,7 @@ class LiveRender:
     def _render(self, request: PoseRequest) -> Any:
         clip = self._clip
         pose = request.pose
-        extra = {"synthesis": self._draft} if request.draft else {}
+        extra = {"synthesis": self.draft_synthesis} if request.draft else {}
         return self.renderer.render(listener=pose.listener, yaw=pose.yaw, mono=clip, source=pose.source, **extra)
 
     def _deliver(self, seq: int, request: PoseRequest, result: Any) -> None:

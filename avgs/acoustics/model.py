@@ -195,8 +195,14 @@ def binaural_waveform(
     iterations that restore them, starting from the source phase; 0 iterations is the
     plain iSTFT, the paper's synthesis (and the streaming one, :mod:`avgs.streaming`).
     """
+    spec = binaural_spectrogram(mono_stft, mixture, difference, post_conv, reverb, decay)  # [B, 2, F, N_t]
+    return synthesise(spec, length, stft, synthesis)
+
+
+def synthesise(spec: torch.Tensor, length: int, stft=STFT, synthesis: SynthesisConfig | None = None) -> torch.Tensor:
+    """Waveform ``[..., length]`` of the ear spectrogram ``spec [..., F, N_t]`` (:func:`binaural_spectrogram`):
+    its magnitudes restored by ``synthesis``'s phase iterations from its phase (None: the defaults)."""
     from avgs import dsp
 
     synthesis = synthesis or SynthesisConfig()
-    spec = binaural_spectrogram(mono_stft, mixture, difference, post_conv, reverb, decay)  # [B, 2, F, N_t]
     return dsp.griffin_lim(spec, spec.abs(), length, synthesis.phase_iterations, synthesis.phase_momentum, stft)

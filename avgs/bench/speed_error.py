@@ -31,6 +31,7 @@ import torch
 
 from avgs.bench.latency import random_poses, test_signal, time_render, with_precision
 from avgs.bench.timing import Timing
+from avgs.config import SynthesisConfig
 
 VICINITIES = (5.0, 10.0, 15.0, 20.0, 25.0)
 BUDGET_FRACTIONS = (0.5, 0.25, 0.1, 0.05)
@@ -276,8 +277,6 @@ def bench_scene(scene_dir, work: Path, *, iterations: int, n_points: int, repeat
         budget_rows.append(row)
         say(f"{scene.name}: {label}: MAG {s['MAG']:.3f}, {t.median_ms:.2f} ms, {row['ckpt_bytes'] / 1e6:.2f} MB")
     rows += budget_rows[1:]  # 'all points' is the vicinity row already
-
-    from avgs.config import SynthesisConfig
 
     for iterations in PHASE_ITERATIONS:  # the synthesis: speed against error of the phase iterations
         if iterations == SynthesisConfig().phase_iterations:
