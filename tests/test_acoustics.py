@@ -110,6 +110,36 @@ def test_harmonic_direction_feature_is_periodic_and_lateral():
         Binauralizer(context_dim=None, direction_encoding="harmonic", direction_harmonics=0)
 
 
+@pytest.mark.parametrize("encoding", ["fourier", "harmonic"])
+def test_direction_feature_reaches_every_difference_layer(encoding):
+    """With the direction's weights in the first difference layer zeroed, theta still moves
+    m_d when every layer takes the feature, and no longer moves it when only the first does."""
+    xy, context = torch.rand(1, 2).expand(8, 2), torch.randn(1, 6).expand(8, 6)
+    theta = torch.linspace(-3.0, 3.0, 8)
+    swings = {}
+    for every in (True, False):
+        torch.manual_seed(0)
+        b = Binauralizer(context_dim=6, width=16, direction_encoding=encoding, direction_every_layer=every)
+        D = b.direction_dim
+        widths = [layer.in_features for layer in b.diff_mlp]
+        assert widths == ([16 + D] * 4 if every else [16 + D, 16, 16, 16])
+        with torch.no_grad():
+            b.diff_mlp[0].weight[:, 16:] = 0.0  # the first layer ignores theta
+            m_d = b(xy, theta, context).difference  # [8, F]
+        swings[every] = float((m_d.max(0).values - m_d.min(0).values).max())
+    assert swings[True] > 1e-3
+    assert swings[False] < 1e-6
+
+
+def test_checkpoints_from_before_every_layer_directions_keep_the_first_layer_only():
+    from avgs.config import TrainConfig
+
+    stored = TrainConfig().to_dict()
+    del stored["acoustic"]["direction_every_layer"]  # as written before the option existed
+    assert TrainConfig.from_dict(stored).acoustic.direction_every_layer is False
+    assert TrainConfig.from_dict(TrainConfig().to_dict()).acoustic.direction_every_layer is True
+
+
 @pytest.mark.parametrize("encoding", ["embedding", "fourier", "harmonic"])
 @pytest.mark.parametrize("activation", ["relu", "sigmoid"])
 def test_binauralizer_mask_shapes_and_ranges(encoding, activation):

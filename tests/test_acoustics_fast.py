@@ -38,13 +38,15 @@ def make_model(n=700, seed=0, **cfg) -> AVGSModel:
         {},
         {"direction_encoding": "embedding"},
         {"direction_encoding": "harmonic", "direction_harmonics": 3, "position_frequencies": 4},
+        {"direction_every_layer": False},
+        {"direction_encoding": "fourier"},
         {"mixture_activation": "sigmoid"},
         {"use_context": False},
         {"field_layers": 1},
         {"field_layers": 4, "vicinity_percentile": 100.0},
         {"reverb_tail": False},
     ],
-    ids=["default", "embedding", "harmonic-low-pe", "sigmoid", "no-context", "one-layer-F", "deep-F-all-points", "no-reverb-tail"],
+    ids=["default", "embedding", "harmonic-low-pe", "direction-first-layer", "fourier", "sigmoid", "no-context", "one-layer-F", "deep-F-all-points", "no-reverb-tail"],
 )
 def test_fast_masks_equal_the_model(cfg):
     model = make_model(**cfg)

@@ -298,3 +298,15 @@ def test_stage1_file_is_checked_before_use(quick_scene, tmp_path):
     assert cli_main(["train", str(quick_scene), "--out", str(tmp_path / "a.ckpt"), "--quick", "--no-progress",
                      "--stage1", str(tmp_path / "missing.pt")]) == 2
     assert not (tmp_path / "a.ckpt").exists()
+
+
+def test_train_flags_set_the_direction_layers():
+    import argparse
+
+    from avgs.commands.train import add_arguments, config_from_args
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    parse = lambda *flags: config_from_args(parser.parse_args(["S", "--out", "x.ckpt", *flags]))  # noqa: E731
+    assert parse().acoustic.direction_every_layer is True
+    assert parse("--direction-first-layer").acoustic.direction_every_layer is False

@@ -13,7 +13,7 @@ work per pose, by exact rewrites of the network and caches kept between calls:
 - **B**: the 257 frequency queries share their positional encoding; its projection
   ``W_f PE(f) + b`` is precomputed (``[F, width]``), a pose adds ``W_xy PE(x, y)``
   and the projected context (one vector each). With concatenated direction features the
-  first difference layer is split the same way. All 257 queries go through the MLPs
+  difference layers that take it are split the same way. All 257 queries go through the MLPs
   as one ``[F, width]`` batch, into work buffers kept between calls.
 - C_S is computed by :meth:`source_context` and cached by the caller until the source
   moves; everything runs without autograd.
@@ -103,10 +103,12 @@ class FastMasks:
         self._embedding = b.direction
         diff = [(m.weight.T.contiguous().to(dtype), m.bias.to(dtype)) for m in b.diff_mlp]
         W = self._q_freq.shape[1]
-        if self._embedding is None:  # fourier or harmonic: split the first difference layer into h and e parts
-            W0, b0 = diff[0]  # [W + D, W]
-            self._diff_first = (W0[:W].contiguous(), W0[W:].contiguous(), b0)
-            diff = diff[1:]
+        self._diff_split = []  # fourier or harmonic: the layers that take e, split into h and e parts
+        if self._embedding is None:
+            n_split = len(diff) if b.direction_every_layer else 1
+            for Wl, bl in diff[:n_split]:  # [W + D, W], [W]
+                self._diff_split.append((Wl[:W].contiguous(), Wl[W:].contiguous(), bl))
+            diff = diff[n_split:]
         self._diff = diff
         self._diff_head = (b.diff_head.weight.T.contiguous().to(dtype), b.diff_head.bias.to(dtype))
         tail = b.reverb
@@ -172,9 +174,10 @@ class FastMasks:
             for W, b in self._diff:
                 g = torch.addmm(b, g, W).relu_().add_(e)
         else:
-            Wh, We, b0 = self._diff_first
             e = self._direction_feature(torch.tensor([float(theta)], device=self.device)).to(self.dtype)[0]  # [D]
-            g = torch.addmm(torch.addmv(b0, We.T, e), h, Wh).relu_()  # [F, W]
+            g = h
+            for Wh, We, bl in self._diff_split:  # W [g (+) e] + b = W_h g + (W_e e + b): e's part is one vector
+                g = torch.addmm(torch.addmv(bl, We.T, e), g, Wh).relu_()  # [F, W]
             for W, b in self._diff:
                 g = torch.addmm(b, g, W).relu_()
         g = g + h  # [F, W] residual

@@ -82,6 +82,7 @@ class AVGSModel(nn.Module):
             direction_embedding=cfg.direction_embedding,
             position_frequencies=cfg.position_frequencies,
             direction_harmonics=cfg.direction_harmonics,
+            direction_every_layer=cfg.direction_every_layer,
             post_conv=cfg.post_conv,
             reverb_tail=cfg.reverb_tail,
             hop_seconds=stft.hop_length / stft.sample_rate,

@@ -41,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=field_help(AcousticConfig, "direction_encoding"))
     parser.add_argument("--direction-harmonics", type=int, metavar="K", help=field_help(AcousticConfig, "direction_harmonics"))
     parser.add_argument("--position-frequencies", type=int, metavar="N", help=field_help(AcousticConfig, "position_frequencies"))
+    parser.add_argument("--direction-first-layer", dest="direction_every_layer", action="store_false", default=None,
+                        help="Give B's difference MLP the direction feature at its first layer only (the paper's "
+                             "text; the default gives it to every layer).")
     parser.add_argument("--no-gaussians", action="store_true", help="Do not store G in the checkpoint.")
     parser.add_argument("--device", choices=("cpu", "cuda"), help=field_help(TrainConfig, "device"))
     parser.add_argument("--seed", type=int, help=field_help(TrainConfig, "seed"))
@@ -67,6 +70,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "direction_encoding": (cfg.acoustic, "direction_encoding"),
         "direction_harmonics": (cfg.acoustic, "direction_harmonics"),
         "position_frequencies": (cfg.acoustic, "position_frequencies"),
+        "direction_every_layer": (cfg.acoustic, "direction_every_layer"),
         "audio_points": (cfg.points, "initial_points"),
         "init": (cfg, "init"),
         "device": (cfg, "device"),
