@@ -45,12 +45,13 @@ done
 # harmonics with 4 frequencies (the defaults after it). G_a straight from the geometry
 # (--init sfm, no stage 1), so the comparison needs no GPU.
 sfm() { run "$1" "$2" --init sfm --no-gaussians --iterations 2000 "${@:3}"; }
-OLD="--direction-encoding fourier --position-frequencies 10"
+# (Made before the direction feature went to every layer of B's difference MLP: first layer only.)
+OLD="--direction-encoding fourier --position-frequencies 10 --direction-first-layer"
 for p in $PRESETS; do
   sfm ${p}_0 runs/features/old/avgs/${p}_0.ckpt $OLD
   sfm ${p}_0 runs/features/old/nocontext/${p}_0.ckpt $OLD --no-context
-  sfm ${p}_0 runs/features/new/avgs/${p}_0.ckpt
-  sfm ${p}_0 runs/features/new/nocontext/${p}_0.ckpt --no-context
+  sfm ${p}_0 runs/features/new/avgs/${p}_0.ckpt --direction-first-layer
+  sfm ${p}_0 runs/features/new/nocontext/${p}_0.ckpt --no-context --direction-first-layer
 done
 
 # Ablations on the office scene, 2000 iterations each (the val column of each log's final record).
@@ -70,13 +71,15 @@ for p in office house apartment outdoor; do
   DATA=data/rawhrtf sfm ${p}_0 runs/rawhrtf/avgs/${p}_0.ckpt
   DATA=data/rawhrtf sfm ${p}_0 runs/rawhrtf/nocontext/${p}_0.ckpt --no-context
 done
-# Outdoors with the raw head: a second seed at 2000 iterations, and both seeds at 4000.
-DATA=data/rawhrtf sfm outdoor_0 runs/rawhrtf_s1/avgs/outdoor_0.ckpt --seed 1
-DATA=data/rawhrtf sfm outdoor_0 runs/rawhrtf_s1/nocontext/outdoor_0.ckpt --seed 1 --no-context
-for s in 0 1; do
-  DATA=data/rawhrtf sfm outdoor_0 runs/rawhrtf_4k/s$s/outdoor_0.ckpt --iterations 4000 --eval-every 1000 --seed $s
-  DATA=data/rawhrtf sfm outdoor_0 runs/rawhrtf_4k_nc/s$s/outdoor_0.ckpt --iterations 4000 --eval-every 1000 --seed $s --no-context
-done
+# The direction feature at every layer of B's difference MLP (the default) against the first
+# layer only (--direction-first-layer), with the control, three seeds per raw-head preset.
+# The README's numbers for these came from an H100 with the same commands
+# (scripts/device/cli_batch.sh, two presets per call); here they run on the CPU.
+for p in office house apartment outdoor; do for s in 0 1 2; do
+  DATA=data/rawhrtf sfm ${p}_0 runs/layers/avgs_s$s/${p}_0.ckpt --seed $s
+  DATA=data/rawhrtf sfm ${p}_0 runs/layers/nocontext_s$s/${p}_0.ckpt --seed $s --no-context
+  DATA=data/rawhrtf sfm ${p}_0 runs/layers/firstlayer_s$s/${p}_0.ckpt --seed $s --direction-first-layer
+done; done
 wait
 
 $A eval data/presets --method mono-mono --method mono-energy --method stereo-energy --method oracle-mask \
@@ -87,5 +90,5 @@ AB=""; for d in runs/main/avgs runs/main/nocontext runs/ablation/* runs/conv; do
 $A eval data/presets --scene office_0 --method stereo-energy $AB --json runs/ablation/eval.json --no-progress
 $A eval data/rawhrtf --method mono-mono --method mono-energy --method stereo-energy --method oracle-mask \
   --method ckpt:runs/rawhrtf/nocontext --method ckpt:runs/rawhrtf/avgs --json runs/rawhrtf/eval.json --no-progress
-$A eval data/rawhrtf --scene outdoor_0 --method ckpt:runs/rawhrtf_4k/s0/outdoor_0.ckpt --method ckpt:runs/rawhrtf_4k/s1/outdoor_0.ckpt \
-  --method ckpt:runs/rawhrtf_4k_nc/s0/outdoor_0.ckpt --method ckpt:runs/rawhrtf_4k_nc/s1/outdoor_0.ckpt --no-progress
+L=""; for d in runs/layers/*/; do L="$L --method ckpt:$d"; done
+$A eval data/rawhrtf $L --json runs/layers/eval.json --no-progress

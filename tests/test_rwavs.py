@@ -321,3 +321,24 @@ def test_loading_warns_nothing(written):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         RWAVSScene(written.scene_dir)
+
+
+def test_a_scene_packed_for_the_gpu_machine_reads_as_the_original(tmp_path):
+    """scripts/device/prepare.py keeps the RWAVS names with 16-bit FLAC inside: the reader
+    takes it by its header, and the clips match the original to 16-bit rounding."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "prepare", Path(__file__).resolve().parents[1] / "scripts" / "device" / "prepare.py")
+    prepare = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(prepare)
+    w = write_scene(tmp_path / "data", "office_1", n_train=5, n_val=2, seed=4)
+    packed = tmp_path / "gpu" / "data" / "office_1"
+    prepare.pack_scene(w.scene_dir, packed, frames=False)
+    assert sf.info(str(packed / "binaural_syn_re.wav")).format == "FLAC"
+    assert (packed.parent / "position.json").is_file() and not (packed / "frames").exists()
+    original, copy = RWAVSScene(w.scene_dir).dataset("train"), RWAVSScene(packed).dataset("train")
+    assert torch.equal(original.listener, copy.listener)
+    assert torch.allclose(original.binaural, copy.binaural, atol=2.0 / 2**15)
+    assert torch.allclose(original.mono, copy.mono, atol=2.0 / 2**15)
