@@ -126,12 +126,12 @@ class AcousticConfig:
     "Direction feature of B: AV-NeRF's learned circular embedding added per layer, the paper's concatenated Fourier features, or circular harmonics of theta."
     direction_harmonics: int = 4
     "Orders of the harmonic direction feature: cos(n theta), sin(n theta) for n = 1 .. this."
-    # Measured (scene, --init sfm, 2000 iterations; H100; .gpu-style runs recorded in the
-    # README "Direction at every layer"): with the feature at the first layer only, AV-GS's
-    # difference mask ignored theta in 2 of 3 seeds outdoors and 2 of 2 in the apartment,
-    # raw KEMAR head (ILD error 7.6-7.8 dB outdoors, 2.09 in the apartment); at every layer
-    # none did (2.46-2.64 and 1.32 dB, the --no-context control's level), and the
-    # equalised office and outdoor presets were unchanged within the seed spread.
+    # Measured (four raw-head presets x three seeds, --init sfm, 2000 iterations, on an H100;
+    # README "Direction at every layer"): with the feature at the first layer only, AV-GS
+    # missed the direction in 8 runs of 12 (outdoors, 2 seeds: ILD error 7.6-7.8 dB, about
+    # Mono-Mono's; house and apartment: 0.6-0.8 dB above the control); at every layer it
+    # never did and is level with --no-context, and the equalised presets did not move
+    # beyond the seed spread.
     direction_every_layer: bool = True
     "Concatenate the (fourier or harmonic) direction feature to every layer of B's difference MLP (AV-NeRF adds its embedding after each); off: the first layer only (the paper's text)."
     post_conv: bool = False

@@ -37,8 +37,7 @@ A concatenated feature enters the input of every layer of the difference MLP
 (``direction_every_layer``), as AV-NeRF's embedding is added after every layer. Given to
 the first layer only (the paper's text), it must survive three more layers, and with the
 scene context B could settle on a difference mask that ignores theta (raw-head scenes,
-2000 iterations: 4 runs of 5; measured, see
-:data:`avgs.config.AcousticConfig.direction_every_layer`).
+2000 iterations: 8 runs of 12; see :data:`avgs.config.AcousticConfig.direction_every_layer`).
 
 AV-NeRF leaves ``m_m`` linear and applies the ReLU to the ear magnitudes, so a bin with a
 negative mask still gets gradient from the mixture loss; with ``relu`` on the mask itself,
