@@ -140,6 +140,27 @@ def test_checkpoints_from_before_every_layer_directions_keep_the_first_layer_onl
     assert TrainConfig.from_dict(TrainConfig().to_dict()).acoustic.direction_every_layer is True
 
 
+def test_the_bundled_demo_loads_with_its_first_layer_direction(capsys):
+    """The demo was trained before the option existed: it loads as it was trained, and
+    ``avgs info --json`` says so."""
+    import json
+    from pathlib import Path
+
+    from avgs import SceneRenderer
+    from avgs.cli import main
+
+    demo = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
+    from avgs.checkpoint import load_checkpoint
+
+    weights = load_checkpoint(demo)["binauralizer"]
+    assert weights["diff_mlp.0.weight"].shape == (128, 136)  # h (+) 8 harmonics
+    assert weights["diff_mlp.1.weight"].shape == (128, 128)  # h only
+    mono = np.random.default_rng(0).standard_normal(4096).astype(np.float32)
+    assert np.isfinite(SceneRenderer.load(demo).render((1.0, 1.0, 1.6), 0.0, mono).binaural).all()
+    assert main(["info", str(demo), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["training"]["direction_every_layer"] is False
+
+
 @pytest.mark.parametrize("encoding", ["embedding", "fourier", "harmonic"])
 @pytest.mark.parametrize("activation", ["relu", "sigmoid"])
 def test_binauralizer_mask_shapes_and_ranges(encoding, activation):

@@ -48,6 +48,7 @@ def summary(path) -> dict:
             "point_management": cfg.points.enabled,
             "mixture_activation": cfg.acoustic.mixture_activation,
             "direction_encoding": cfg.acoustic.direction_encoding,
+            "direction_every_layer": cfg.acoustic.direction_every_layer,
             "position_frequencies": cfg.acoustic.position_frequencies,
             "reverb_tail": cfg.acoustic.reverb_tail,
             "seed": cfg.seed,
