@@ -323,16 +323,22 @@ def test_loading_warns_nothing(written):
         RWAVSScene(written.scene_dir)
 
 
-def test_a_scene_packed_for_the_gpu_machine_reads_as_the_original(tmp_path):
-    """scripts/device/prepare.py keeps the RWAVS names with 16-bit FLAC inside: the reader
-    takes it by its header, and the clips match the original to 16-bit rounding."""
+def _load_script(path: str):
+    """A module from ``scripts/<path>`` (the scripts are not a package)."""
     import importlib.util
     from pathlib import Path
 
-    spec = importlib.util.spec_from_file_location(
-        "prepare", Path(__file__).resolve().parents[1] / "scripts" / "device" / "prepare.py")
-    prepare = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(prepare)
+    file = Path(__file__).resolve().parents[1] / "scripts" / path
+    spec = importlib.util.spec_from_file_location(file.stem, file)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_scene_packed_for_the_gpu_machine_reads_as_the_original(tmp_path):
+    """scripts/device/prepare.py keeps the RWAVS names with 16-bit FLAC inside: the reader
+    takes it by its header, and the clips match the original to 16-bit rounding."""
+    prepare = _load_script("device/prepare.py")
     w = write_scene(tmp_path / "data", "office_1", n_train=5, n_val=2, seed=4)
     packed = tmp_path / "gpu" / "data" / "office_1"
     prepare.pack_scene(w.scene_dir, packed, frames=False)
@@ -342,3 +348,18 @@ def test_a_scene_packed_for_the_gpu_machine_reads_as_the_original(tmp_path):
     assert torch.equal(original.listener, copy.listener)
     assert torch.allclose(original.binaural, copy.binaural, atol=2.0 / 2**15)
     assert torch.allclose(original.mono, copy.mono, atol=2.0 / 2**15)
+
+
+def test_a_subset_scene_keeps_the_frame_the_val_poses_and_some_train_poses(tmp_path):
+    subset = _load_script("subset_scene.py")
+    w = write_scene(tmp_path / "data", "office_1", n_train=9, n_val=3, seed=5)
+    out = subset.subset_scene(w.scene_dir, tmp_path / "sparse", poses=4, seed=1)
+    full, part = RWAVSScene(w.scene_dir), RWAVSScene(out)
+    assert len(part.train) == 4 and len(part.val) == len(full.val) == 3
+    a, b = part.frame.to_dict(), full.frame.to_dict()
+    assert a.keys() == b.keys() and all(np.allclose(a[k], b[k], rtol=0, atol=1e-9) for k in a)  # same frame
+    full_xy = {tuple(np.round(c.listener, 6)) for c in full.train}
+    assert {tuple(np.round(c.listener, 6)) for c in part.train} <= full_xy
+    assert torch.equal(part.dataset("val").binaural, full.dataset("val").binaural)
+    with pytest.raises(ValueError, match="--poses must be in 1..9"):
+        subset.subset_scene(w.scene_dir, tmp_path / "bad", poses=10)
