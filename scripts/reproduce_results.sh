@@ -71,6 +71,17 @@ for p in office house apartment outdoor; do
   DATA=data/rawhrtf sfm ${p}_0 runs/rawhrtf/avgs/${p}_0.ckpt
   DATA=data/rawhrtf sfm ${p}_0 runs/rawhrtf/nocontext/${p}_0.ckpt --no-context
 done
+# The scene context with fewer recordings: a quarter of the training poses, three seeds.
+for p in $PRESETS; do
+  [ -d data/sparse50/${p}_0 ] || .venv/bin/python scripts/subset_scene.py data/presets/${p}_0 data/sparse50 --poses 50
+done
+for s in 0 1 2; do
+  r=runs/sparse50; [ $s = 0 ] || r=runs/sparse50_s$s
+  for p in $PRESETS; do
+    DATA=data/sparse50 sfm ${p}_0 $r/avgs/${p}_0.ckpt --seed $s
+    DATA=data/sparse50 sfm ${p}_0 $r/nocontext/${p}_0.ckpt --seed $s --no-context
+  done
+done
 # The direction feature at every layer of B's difference MLP (the default) against the first
 # layer only (--direction-first-layer), with the control, three seeds per raw-head preset.
 # The README's numbers for these came from an H100 with the same commands
@@ -90,5 +101,7 @@ AB=""; for d in runs/main/avgs runs/main/nocontext runs/ablation/* runs/conv; do
 $A eval data/presets --scene office_0 --method stereo-energy $AB --json runs/ablation/eval.json --no-progress
 $A eval data/rawhrtf --method mono-mono --method mono-energy --method stereo-energy --method oracle-mask \
   --method ckpt:runs/rawhrtf/nocontext --method ckpt:runs/rawhrtf/avgs --json runs/rawhrtf/eval.json --no-progress
+M=""; for r in sparse50 sparse50_s1 sparse50_s2; do M="$M --method ckpt:runs/$r/nocontext --method ckpt:runs/$r/avgs"; done
+$A eval data/sparse50 --method stereo-energy $M --json runs/sparse50/eval.json --no-progress
 L=""; for d in runs/layers/*/; do L="$L --method ckpt:$d"; done
 $A eval data/rawhrtf $L --json runs/layers/eval.json --no-progress
