@@ -2,7 +2,7 @@
 
 Each is a *method* in the sense of :mod:`avgs.evaluate`: a callable
 ``(clip, scene) -> binaural [2, T]`` float32 (Oracle-Mask: an
-:class:`avgs.evaluate.Prediction`, the waveform and the masked magnitudes behind it). Mono-Energy and Stereo-Energy are oracle
+:class:`avgs.methods.Prediction`, the waveform and the masked magnitudes behind it). Mono-Energy and Stereo-Energy are oracle
 baselines: they read the ground-truth energy of the clip they predict.
 
 - Mono-Mono: the source copied to both ears.
@@ -23,6 +23,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from avgs.methods import Prediction
 
 if TYPE_CHECKING:
     from avgs.data.rwavs import AudioClip, RWAVSScene
@@ -55,11 +57,10 @@ def stereo_energy(clip: "AudioClip", scene: "RWAVSScene | None" = None) -> np.nd
 
 def oracle_mask(clip: "AudioClip", scene: "RWAVSScene | None" = None):
     """The best time-invariant mask per ear for this clip's own target, as an
-    :class:`avgs.evaluate.Prediction`: the waveform ``[2, T]`` and the masked magnitudes ``[2, F, N]``."""
+    :class:`avgs.methods.Prediction`: the waveform ``[2, T]`` and the masked magnitudes ``[2, F, N]``."""
     import torch
 
     from avgs import dsp
-    from avgs.evaluate import Prediction
 
     mono = torch.from_numpy(np.ascontiguousarray(clip.mono, dtype=np.float32))
     spec = dsp.stft(mono[None].double())[0]  # [F, N] complex

@@ -133,8 +133,7 @@ def untrained_checkpoint(
     model = AVGSModel(
         AudioPoints(torch.as_tensor(frame.to_normalised(pts), dtype=torch.float32), torch.as_tensor(alpha)),
         config.acoustic,
-        config.stft.n_freq,
-        stft=config.stft,
+        config.stft,
     )
     # Heads that training starts at zero weight (a constant mask) get random weights here,
     # so that every output of an untrained model depends on the pose, as a trained one's does.
@@ -198,6 +197,10 @@ def validate_checkpoint(ckpt, path: str | Path = "<checkpoint>") -> None:
         raise ValueError(f"{path}: bad 'frame': {exc}") from None
     if not (isinstance(ckpt["source"], torch.Tensor) and ckpt["source"].numel() == 3):
         raise ValueError(f"{path}: 'source' must be a tensor of 3 numbers")
+    try:
+        TrainConfig.from_dict(ckpt["config"])
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: bad 'config': {exc}") from None
     scene = ckpt["scene"]
     if not isinstance(scene, dict) or "bounds" not in scene:
         raise ValueError(f"{path}: 'scene' must hold 'bounds' [2,3]")

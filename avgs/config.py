@@ -1,7 +1,11 @@
 """Every configurable number of AV-GS, in one place, with the paper's defaults.
 
-Each field carries a one-line docstring (the string literal after it); the CLI reads
-these for its ``--help``. STFT settings live here and nowhere else.
+Each field carries a one-line docstring (the string literal after it). ``avgs train``
+makes one flag of every field of the training configuration, with that docstring as its
+help (:mod:`avgs.commands.flags`); a field's ``metadata={"flag": ...}`` names its flag
+where the generated name would read badly. Modules receive these objects; none keeps a
+default of its own. STFT settings live here and nowhere else. Why each default is what it
+is, with the measurements behind it: docs/paper-deviations.md and docs/results.md.
 """
 
 from __future__ import annotations
@@ -69,20 +73,16 @@ class GaussianConfig:
     "Above the gradient threshold, clone Gaussians at most this large (x scene extent), split larger ones (3D-GS)."
     prune_scale3d: float = 0.1
     "After the first opacity reset, prune Gaussians larger than this (x scene extent) (3D-GS)."
-    max_gaussians: int = 200_000
+    max_gaussians: int = field(default=200_000, metadata={"flag": "max-gaussians"})
     "Hard cap on the number of Gaussians (keeps CPU training and drawing tractable)."
     init_points: int = 20_000
     "Initial points sampled from the scene geometry or a random box."
-    image_downscale: int = 1
+    image_downscale: int = field(default=1, metadata={"flag": "image-downscale"})
     "Train on frames downscaled by this factor."
     backend: Literal["auto", "torch", "gsplat"] = "auto"
     "Rasterizer: gsplat when CUDA is present, else our pure-PyTorch rasterizer."
     log_every: int = 100
     "Write a stage-1 log record (loss, PSNR, Gaussian count) every this many iterations."
-
-
-DIRECTION_ENCODINGS = ("embedding", "fourier", "harmonic")
-"Direction features B can use (:mod:`avgs.acoustics.binauralizer`)."
 
 
 @dataclass
@@ -103,43 +103,22 @@ class AcousticConfig:
     "Width of the binauralizer MLPs (128 for RWAVS, 256 for RIR)."
     pe_frequencies: int = 10
     "Positional-encoding frequencies of the frequency query (and of Fourier direction features), log-spaced up to 2^(n-1)."
-    # Measured (four presets, --init sfm, 2000 iterations, val; `avgs eval` ILD error above
-    # 1.5 kHz): 10 frequencies (up to 2^9 per normalised unit, wavelengths of ~0.01) let
-    # B memorise the 200 training poses; 4 (up to 2^3, ~0.8 units) lowered MAG on all four
-    # presets and the ILD error on three. See README "Direction and position features".
     position_frequencies: int = 4
     "Positional-encoding frequencies of the listener's (x, y), log-spaced up to 2^(n-1) (AV-NeRF: 10)."
-    direction_embedding: int = 180
-    "Number of learned, circularly interpolated direction embeddings (AV-NeRF)."
-    # Measured (free-field test scene, 48 train poses, 1500 iterations; val MAG / ENV):
-    # relu+embedding 0.860/0.156, sigmoid+embedding 0.736/0.151, relu+fourier 0.244/0.129,
-    # sigmoid+fourier 0.243/0.127. relu kept: equal within noise and it can exceed gain 1
-    # (the two clips are peak-normalised separately); fourier wins clearly.
     mixture_activation: Literal["relu", "sigmoid"] = "relu"
     "Last activation of the mixture mask: AV-NeRF's unbounded relu or the paper's sigmoid."
-    # Then (same runs as position_frequencies; scripts/ild_check.py): with harmonic (4 orders)
-    # and the 4-frequency listener encoding, the correlation of predicted with true ILD on
-    # unseen poses rose in three presets of four (apartment 0.56 -> 0.63, outdoor 0.90 ->
-    # 0.93), and the demo's from 0.41 to 0.68. Harmonic is periodic across the listener's
-    # back and hands B sin(theta), the source's lateral offset, directly.
-    direction_encoding: Literal["embedding", "fourier", "harmonic"] = "harmonic"
-    "Direction feature of B: AV-NeRF's learned circular embedding added per layer, the paper's concatenated Fourier features, or circular harmonics of theta."
+    direction_encoding: Literal["fourier", "harmonic"] = "harmonic"
+    "Direction feature of B: circular harmonics of theta, or the paper's Fourier features of theta / (1.01 pi)."
     direction_harmonics: int = 4
     "Orders of the harmonic direction feature: cos(n theta), sin(n theta) for n = 1 .. this."
-    # Measured (four raw-head presets x three seeds, --init sfm, 2000 iterations, on an H100;
-    # README "Direction at every layer"): with the feature at the first layer only, AV-GS
-    # missed the direction in 8 runs of 12 (outdoors, 2 seeds: ILD error 7.6-7.8 dB, about
-    # Mono-Mono's; house and apartment: 0.6-0.8 dB above the control); at every layer it
-    # never did and is level with --no-context, and the equalised presets did not move
-    # beyond the seed spread.
     direction_every_layer: bool = True
-    "Concatenate the (fourier or harmonic) direction feature to every layer of B's difference MLP (AV-NeRF adds its embedding after each); off: the first layer only (the paper's text)."
+    "Give the direction feature to every layer of B's difference MLP (as AV-NeRF adds its direction to each); off: the first layer only (the paper's text)."
     post_conv: bool = False
     "AV-NeRF's optional time-frequency conv head on the ear magnitudes (avgs.acoustics.post_conv)."
     reverb_tail: bool = True
     "Add a learned late-reverberation tail to B's masks (avgs.acoustics.reverb_tail); off: the paper's masks only."
-    use_context: bool = True
-    "Condition B on the scene context C (False: the --no-context control)."
+    use_context: bool = field(default=True, metadata={"flag": "context"})
+    "Condition B on the scene context C from F (--no-context: the control model without it)."
     lambda_a: float = 1e-4
     "Weight of the volume regulariser L_v (the paper does not state it)."
     iterations: int = 40000
@@ -164,8 +143,8 @@ class AcousticConfig:
 class PointManagementConfig:
     """Audio-aware point management (paper §3.3): grow where gradients are large, prune outliers."""
 
-    enabled: bool = True
-    "Turn audio-aware densification and pruning on (--no-point-management turns it off)."
+    enabled: bool = field(default=True, metadata={"flag": "point-management"})
+    "Audio-aware densification and pruning of the audio points."
     grad_threshold: float = 4e-4
     "tau_g (paper: 0.0004): averaged k * ||dL/dX|| above which a vicinity point spawns a new point."
     densify_max_fraction: float = 0.02
@@ -184,7 +163,7 @@ class PointManagementConfig:
     "Radius of the outlier test in normalised scene units (paper: 0.1)."
     max_points: int = 60_000
     "Upper bound on the number of audio points."
-    initial_points: int = 0
+    initial_points: int = field(default=0, metadata={"flag": "audio-points"})
     "Start G_a from a seeded random subset of this many of G's points (0: all of them, up to max_points)."
     prune_max_fraction: float = 0.5
     "Skip a pruning step that would remove more than this fraction of the points (a sparse G_a, not outliers)."
@@ -202,7 +181,7 @@ class TrainConfig:
     "Audio points from a warmed-up 3D-GS (gs) or straight from the scene geometry points (sfm)."
     seed: int = 0
     "Random seed; CPU training is reproducible for a fixed seed."
-    device: str = "cpu"
+    device: Literal["cpu", "cuda"] = "cpu"
     "Torch device: cpu or cuda."
     checkpoint_every: int = 2000
     "Save the checkpoint atomically every this many stage-2 iterations."
@@ -210,7 +189,7 @@ class TrainConfig:
     "Evaluate MAG/ENV on the validation split every this many iterations."
     log_every: int = 50
     "Write a JSON-lines log record every this many iterations."
-    store_gaussians: bool = True
+    store_gaussians: bool = field(default=True, metadata={"flag": "gaussians"})
     "Keep G in the checkpoint (for drawing and listener views); off makes it smaller."
 
     def to_dict(self) -> dict:
@@ -219,7 +198,8 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, d: dict) -> "TrainConfig":
         """From :meth:`to_dict` output, including that of older versions: unknown keys are
-        ignored, and a field added later takes the value that reproduces the old behaviour."""
+        ignored, a field added later takes the value that reproduces the old behaviour
+        (:data:`ADDED_LATER`), and a retired variant (:data:`RETIRED`) is refused with a message."""
         d = dict(d)
         sub = {
             "gaussians": GaussianConfig,
@@ -227,6 +207,9 @@ class TrainConfig:
             "points": PointManagementConfig,
             "stft": STFTConfig,
         }
+        for (section, name), (value, why) in RETIRED.items():
+            if isinstance(d.get(section), dict) and d[section].get(name) == value:
+                raise ValueError(f"trained with {section}.{name} = {value!r}, which this version no longer has: {why}")
         kwargs = {}
         names = {f.name for f in dataclasses.fields(cls)}
         for k, v in d.items():
@@ -239,6 +222,32 @@ class TrainConfig:
             else:
                 kwargs[k] = v
         return cls(**kwargs)
+
+    def validate(self) -> "TrainConfig":
+        """Raise ValueError naming the first value out of range; returns self."""
+        g, a, p = self.gaussians, self.acoustic, self.points
+        checks = [
+            (a.iterations >= 1, "iterations", a.iterations, ">= 1"),
+            (g.iterations >= 0, "stage1 iterations", g.iterations, ">= 0"),
+            (g.image_downscale >= 1, "image downscale", g.image_downscale, ">= 1"),
+            (g.max_gaussians >= 1, "max gaussians", g.max_gaussians, ">= 1"),
+            (0 < a.vicinity_percentile <= 100, "vicinity percentile", a.vicinity_percentile, "in (0, 100]"),
+            (a.direction_harmonics >= 1, "direction harmonics", a.direction_harmonics, ">= 1"),
+            (a.position_frequencies >= 0, "position frequencies", a.position_frequencies, ">= 0"),
+            (a.batch_size >= 1, "batch size", a.batch_size, ">= 1"),
+            (min(a.field_width, a.field_layers, a.context_dim, a.binauralizer_width) >= 1,
+             "field width/layers, context dim and binauralizer width",
+             (a.field_width, a.field_layers, a.context_dim, a.binauralizer_width), ">= 1"),
+            (a.pe_frequencies >= 0, "pe frequencies", a.pe_frequencies, ">= 0"),
+            (p.initial_points >= 0, "audio points", p.initial_points, ">= 0"),
+            (self.seed >= 0, "seed", self.seed, ">= 0"),
+            (self.checkpoint_every >= 1 and self.eval_every >= 1, "checkpoint/eval interval",
+             (self.checkpoint_every, self.eval_every), ">= 1"),
+        ]
+        for ok, what, value, expected in checks:
+            if not ok:
+                raise ValueError(f"{what} must be {expected}, got {value}")
+        return self
 
 
 @dataclass(frozen=True)
@@ -260,25 +269,14 @@ class SynthesisConfig:
 ADDED_LATER = {"acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False}}
 "Fields absent from older stored configurations, with the value that the older code used."
 
-
-def field_help(dc: type, name: str) -> str:
-    """The one-line docstring written under a dataclass field, for CLI help."""
-    import ast
-    import inspect
-    import textwrap
-
-    src = textwrap.dedent(inspect.getsource(dc))
-    body = ast.parse(src).body[0].body
-    for node, nxt in zip(body, body[1:]):
-        if (
-            isinstance(node, ast.AnnAssign)
-            and isinstance(node.target, ast.Name)
-            and node.target.id == name
-            and isinstance(nxt, ast.Expr)
-            and isinstance(nxt.value, ast.Constant)
-        ):
-            return str(nxt.value.value)
-    return ""
+RETIRED = {
+    ("acoustic", "direction_encoding"): (
+        "embedding",
+        "AV-NeRF's learned direction embedding measured far worse than Fourier or harmonic features "
+        "(docs/paper-deviations.md); retrain with the default harmonic features",
+    ),
+}
+"Stored settings of variants that were removed: (section, field) -> (value, why), refused on load."
 
 
 STFT = STFTConfig()

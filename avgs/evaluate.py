@@ -23,9 +23,8 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -35,16 +34,9 @@ from avgs import dsp, metrics
 from avgs.baselines import BASELINES
 from avgs.config import STFT, SynthesisConfig
 from avgs.data.rwavs import AudioClip, RWAVSScene, is_scene_dir
+from avgs.methods import Method, Prediction
 
 
-class Prediction(NamedTuple):
-    """A method's output for one clip when it has magnitudes behind its waveform."""
-
-    binaural: np.ndarray  # [2, T]
-    magnitudes: np.ndarray  # [2, F, N_t], the predicted ear magnitudes the waveform was made from
-
-
-Method = Callable[[AudioClip, RWAVSScene], "np.ndarray | torch.Tensor | Prediction"]
 METRICS = ("MAG", "ENV", "ILD", "MAGp")
 CKPT_PREFIX = "ckpt:"
 

@@ -2,12 +2,13 @@
 
 Public coordinates are the scene's **world** frame, yaw in **degrees** counter-clockwise
 from +x (ARCHITECTURE.md); the conversion to the model's normalised frame and radians
-happens here and nowhere else. Rendering runs under ``torch.inference_mode`` through the
-fast path of :mod:`avgs.acoustics.fast` (same numbers as the model: precomputed parts of F
-and B, a partial selection for the vicinity, work buffers kept between calls), with the
-source context C_S cached until the source moves; all 257 frequency queries go through B
-in one batch, and the masks are time-invariant, so any input length costs one STFT, one
-multiply and one iSTFT (:meth:`SceneRenderer.stream` does the same block by block).
+happens here and nowhere else. Rendering runs the model's own code
+(:meth:`AVGSModel.masks <avgs.acoustics.model.AVGSModel.masks>`) under
+``torch.inference_mode`` with its caches: the pose-independent parts of F and B
+(:meth:`~avgs.acoustics.model.AVGSModel.precompute`) and the source context C_S, kept
+until the source moves. The masks are time-invariant, so any input length costs one STFT,
+one multiply and the synthesis of :mod:`avgs.acoustics.synthesis`
+(:meth:`SceneRenderer.stream` does the same block by block).
 
 Thread safety: :meth:`render` and :meth:`masks` serialise on an internal lock, so one
 worker thread may render while another thread reads the point arrays (read-only numpy).
@@ -23,20 +24,22 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from avgs.acoustics.fast import FastMasks, signed_direction
+from avgs import dsp
+from avgs.acoustics.direction import signed_direction
+from avgs.acoustics.synthesis import Masks, ear_spectrogram, waveform
 from avgs.checkpoint import config_of, load_checkpoint, stft_of
 from avgs.config import SynthesisConfig
 from avgs.data.frame import SceneFrame
+from avgs.gaussians.sh import sh_to_rgb
 
 MAX_NORMALISED = 1e9
 "Positions farther than this from the scene's centre (normalised units; the scene spans ~[-1, 1]) are rejected: squared distances would overflow float32."
-SH_C0 = 0.28209479177387814
-"Degree-0 spherical-harmonics constant: rgb = 0.5 + SH_C0 * DC coefficient."
 
 
 @dataclass(frozen=True)
-class MaskResult:
-    """Masks for one listener pose, and the vicinity sets behind them."""
+class RenderResult:
+    """What one listener pose gives: the masks, the vicinity sets behind them and, from
+    :meth:`SceneRenderer.render`, the binaural waveform."""
 
     mixture: np.ndarray  # [F] float32
     difference: np.ndarray  # [F] float32 in (-1, 1); > 0 means left louder
@@ -44,13 +47,7 @@ class MaskResult:
     source_vicinity: np.ndarray  # [k] int64 indices into SceneRenderer.points
     theta: float  # degrees, direction to the source, positive = source on the listener's left
     reverb: np.ndarray | None = None  # [2, F] float32 reverberant gains (left, right); None without a tail
-
-
-@dataclass(frozen=True)
-class RenderResult(MaskResult):
-    """:class:`MaskResult` plus the binaural waveform."""
-
-    binaural: np.ndarray = None  # [2, T] float32, channel 0 = left ear
+    binaural: np.ndarray | None = None  # [2, T] float32, channel 0 = left ear; None from masks()
     magnitudes: np.ndarray | None = None  # [2, F, N_t] float32 predicted ear magnitudes; only when asked for
 
 
@@ -83,13 +80,15 @@ class SceneRenderer:
 
     def __init__(
         self, ckpt: dict, device: str | torch.device = "cpu", path: str | Path | None = None,
-        synthesis: SynthesisConfig | None = None,
+        synthesis: SynthesisConfig | None = None, dtype: torch.dtype = torch.float32,
     ):
         from avgs.acoustics.model import AVGSModel
         from avgs.acoustics.points import AudioPoints
 
         self.path = Path(path) if path is not None else None
         self.device = torch.device(device)
+        self.dtype = dtype
+        "Precision of the networks (float32; others for measurement: CPUs without native support run them slower)."
         self.synthesis = synthesis or SynthesisConfig()
         "How :meth:`render` makes a waveform of the predicted magnitudes (phase iterations)."
         self.config = config_of(ckpt)
@@ -98,20 +97,20 @@ class SceneRenderer:
         self.history: list[dict] = list(ckpt.get("history", []))
         self.name: str = str(ckpt["scene"].get("name", ""))
         pts = ckpt["audio_points"]
-        fixed_k = ckpt.get("vicinity_k")  # set by pruning (avgs.acoustics.prune): k kept from before
+        fixed_k = ckpt.get("vicinity_k")  # set by pruning (avgs.prune): k kept from before
         model = AVGSModel(
-            AudioPoints(pts["X"], pts["alpha"]),
-            self.config.acoustic,
-            self.stft.n_freq,
+            AudioPoints(pts["X"], pts["alpha"]), self.config.acoustic, self.stft,
             vicinity_k=None if fixed_k is None else int(fixed_k),
-            stft=self.stft,
         )
         if model.field is not None:
             model.field.load_state_dict(ckpt["field"])
         model.binauralizer.load_state_dict(ckpt["binauralizer"])
-        self._model = model.to(self.device).eval().requires_grad_(False)
-        self._fast = FastMasks(self._model)
-        self._source_n = ckpt["source"].detach().double().cpu().numpy().reshape(3)  # normalised
+        self.model = model.to(self.device, dtype).eval().requires_grad_(False)
+        "The AV-GS model (G_a, F, B), for reading; :meth:`render` is the way to use it."
+        self.cache = self.model.precompute()
+        "Its pose-independent parts (:class:`~avgs.acoustics.model.ModelCache`)."
+        self.source_normalised = ckpt["source"].detach().double().cpu().numpy().reshape(3)
+        "The training source in the model's normalised frame."
         self._lock = threading.RLock()
         self._source_cache: tuple[tuple, tuple] | None = None  # (key, (C_S, idx))
 
@@ -125,10 +124,11 @@ class SceneRenderer:
 
     @classmethod
     def load(
-        cls, path: str | Path, device: str | torch.device = "cpu", synthesis: SynthesisConfig | None = None
+        cls, path: str | Path, device: str | torch.device = "cpu", synthesis: SynthesisConfig | None = None,
+        dtype: torch.dtype = torch.float32,
     ) -> "SceneRenderer":
         """Load and validate ``scene.ckpt`` (``torch.load(weights_only=True)``)."""
-        return cls(load_checkpoint(path, map_location="cpu"), device=device, path=path, synthesis=synthesis)
+        return cls(load_checkpoint(path, map_location="cpu"), device=device, path=path, synthesis=synthesis, dtype=dtype)
 
     def _read_gaussians(self, g: dict | None) -> GaussianCloud | None:
         if not g:
@@ -136,7 +136,7 @@ class SceneRenderer:
         means = self.frame.to_world(g["means"].detach().cpu().double().numpy().reshape(-1, 3)).astype(np.float32)
         if "sh" in g:
             dc = g["sh"].detach().cpu().float().reshape(len(means), -1, 3)[:, 0]  # [M, 3]
-            rgb = np.clip(0.5 + SH_C0 * dc.numpy(), 0.0, 1.0).astype(np.float32)
+            rgb = np.clip(sh_to_rgb(dc).numpy(), 0.0, 1.0).astype(np.float32)
         else:
             rgb = np.full_like(means, 0.7)
         return GaussianCloud(_readonly(means), _readonly(rgb))
@@ -156,7 +156,7 @@ class SceneRenderer:
     @property
     def source(self) -> np.ndarray:
         """The training source position ``[3]``, world."""
-        return self.frame.to_world(self._source_n)
+        return self.frame.to_world(self.source_normalised)
 
     @property
     def bounds(self) -> np.ndarray:
@@ -176,8 +176,8 @@ class SceneRenderer:
     @property
     def rt60(self) -> np.ndarray | None:
         """The scene's learned reverberation time per frequency bin, seconds [F]; None without a reverberant tail."""
-        tail = self._model.binauralizer.reverb
-        return None if tail is None else tail.rt60().detach().cpu().numpy()
+        tail = self.model.binauralizer.reverb
+        return None if tail is None else tail.rt60().detach().float().cpu().numpy()
 
     @property
     def sample_rate(self) -> int:
@@ -190,50 +190,59 @@ class SceneRenderer:
     @property
     def vicinity_size(self) -> int:
         """k: points in each of the listener's and the source's vicinity."""
-        return self._model.vicinity_k
+        return self.model.vicinity_k
 
     # -- rendering --------------------------------------------------------------------
 
-    def _cached_source(self, source_n: np.ndarray):
-        key = tuple(float(v) for v in source_n)
-        if self._source_cache is None or self._source_cache[0] != key:
-            self._source_cache = (key, self._fast.source_context(key))
-        return self._source_cache[1]
-
-    def _masks(self, listener, yaw: float, source):
-        """(PoseMasks, source vicinity [k], theta radians)."""
+    def pose(self, listener, yaw: float, source=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """A public pose in the model's terms: (listener [1, 3], theta [1] radians, source [3]),
+        normalised, in the model's dtype. Raises ValueError for positions or yaws it cannot take."""
         listener_n = self.frame.to_normalised(_position(listener, "listener"))
-        source_n = self._source_n if source is None else self.frame.to_normalised(_position(source, "source"))
+        source_n = self.source_normalised if source is None else self.frame.to_normalised(_position(source, "source"))
         yaw = float(yaw)
         if not math.isfinite(yaw):
             raise ValueError(f"yaw must be a finite number of degrees, got {yaw!r}")
-        lis = tuple(float(v) for v in listener_n)
-        for what, value, p in (("listener", listener, lis), ("source", source, source_n)):
-            if not all(abs(float(v)) <= MAX_NORMALISED for v in p):
+        for what, value, p in (("listener", listener, listener_n), ("source", source, source_n)):
+            if not np.all(np.abs(p) <= MAX_NORMALISED):
                 raise ValueError(
-                    f"{what} {value!r} is {max(abs(float(v)) for v in p):.3g} normalised units from the scene's "
+                    f"{what} {value!r} is {np.max(np.abs(p)):.3g} normalised units from the scene's "
                     f"centre; expected at most {MAX_NORMALISED:g} (the scene spans about [-1, 1])"
                 )
-        theta = signed_direction(lis, math.radians(yaw), source_n)
-        cached = self._cached_source(source_n)
-        return self._fast.masks(lis, theta, cached), cached[1], theta
+        lis = torch.tensor(listener_n[None], dtype=torch.float64)  # [1, 3]
+        src = torch.tensor(source_n, dtype=torch.float64)  # [3]
+        theta = signed_direction(lis, torch.tensor([math.radians(yaw)], dtype=torch.float64), src)  # [1]
+        as_model = dict(device=self.device, dtype=self.dtype)
+        return lis.to(**as_model), theta.to(**as_model), src.to(**as_model)
 
-    def masks(self, listener, yaw: float, source=None) -> MaskResult:
-        """Masks for a listener at ``listener`` (world) facing ``yaw`` degrees; ``source`` (world) defaults to the trained one."""
-        with self._lock, torch.inference_mode():
-            m, src_idx, theta = self._masks(listener, yaw, source)
-            return MaskResult(**self._mask_fields(m, src_idx, theta))
+    def source_context(self, source: torch.Tensor):
+        """C_S and the source vicinity for ``source`` [3] (normalised), cached until the source moves."""
+        key = tuple(source.tolist())
+        if self._source_cache is None or self._source_cache[0] != key:
+            self._source_cache = (key, self.model.source_context(source, self.cache))
+        return self._source_cache[1]
+
+    def _masks(self, listener, yaw: float, source) -> tuple[Masks, float]:
+        lis, theta, src = self.pose(listener, yaw, source)
+        masks = self.model.masks(lis, theta, src, self.source_context(src), self.cache)
+        return masks, float(theta[0])
 
     @staticmethod
-    def _mask_fields(m, src_idx: torch.Tensor, theta: float) -> dict:
-        return dict(
-            mixture=m.mixture.cpu().numpy(),
-            difference=m.difference.cpu().numpy(),
-            listener_vicinity=m.listener_vicinity.cpu().numpy(),
-            source_vicinity=src_idx.cpu().numpy(),
-            theta=math.degrees(theta),
-            reverb=None if m.reverb is None else m.reverb.cpu().numpy(),
+    def _result(m: Masks, theta: float, **extra) -> RenderResult:
+        def np32(t):
+            return None if t is None else t[0].float().cpu().numpy()
+
+        return RenderResult(
+            mixture=np32(m.mixture), difference=np32(m.difference), reverb=np32(m.reverb),
+            listener_vicinity=m.listener_vicinity[0].cpu().numpy(), source_vicinity=m.source_vicinity.cpu().numpy(),
+            theta=math.degrees(theta), **extra,
         )
+
+    def masks(self, listener, yaw: float, source=None) -> RenderResult:
+        """Masks for a listener at ``listener`` (world) facing ``yaw`` degrees; ``source`` (world)
+        defaults to the trained one. ``binaural`` is None."""
+        with self._lock, torch.inference_mode():
+            m, theta = self._masks(listener, yaw, source)
+            return self._result(m, theta)
 
     def render(
         self, listener, yaw: float, mono, source=None, magnitudes: bool = False, synthesis: SynthesisConfig | None = None
@@ -245,9 +254,6 @@ class SceneRenderer:
         The waveform is made of them as ``synthesis`` says, by default :attr:`synthesis`:
         a few fast Griffin-Lim iterations from the source's phase (:class:`avgs.config.SynthesisConfig`).
         """
-        from avgs import dsp
-        from avgs.acoustics.model import binaural_spectrogram, synthesise
-
         x = np.asarray(mono, dtype=np.float32)
         if x.ndim == 2 and 1 in x.shape:
             x = x.reshape(-1)
@@ -256,17 +262,26 @@ class SceneRenderer:
         if not np.all(np.isfinite(x)):
             raise ValueError("mono holds NaN or Inf samples")
         with self._lock, torch.inference_mode():
-            m, src_idx, theta = self._masks(listener, yaw, source)
+            m, theta = self._masks(listener, yaw, source)
+            m32 = self.float32(m)
             spec = dsp.stft(torch.from_numpy(x).to(self.device)[None], self.stft)  # [1, F, N_t]
-            reverb = None if m.reverb is None else m.reverb[None]  # [1, 2, F]
-            ears = binaural_spectrogram(spec, m.mixture[None], m.difference[None],
-                                        self._model.binauralizer.post_conv, reverb, self._fast.decay)  # [1, 2, F, N_t]
-            y = synthesise(ears, x.size, self.stft, self.synthesis if synthesis is None else synthesis)[0]  # [2, T]
+            ears = ear_spectrogram(spec, m32, self.post_conv)  # [1, 2, F, N_t]
+            y = waveform(ears, x.size, self.stft, self.synthesis if synthesis is None else synthesis)[0]  # [2, T]
             mags = np.ascontiguousarray(ears[0].abs().float().cpu().numpy()) if magnitudes else None
-            return RenderResult(
-                **self._mask_fields(m, src_idx, theta), binaural=np.ascontiguousarray(y.float().cpu().numpy()),
-                magnitudes=mags,
-            )
+            return self._result(m, theta, binaural=np.ascontiguousarray(y.float().cpu().numpy()), magnitudes=mags)
+
+    @property
+    def post_conv(self):
+        """B's time-frequency conv head (``--post-conv``), or None for the mask model."""
+        return self.model.binauralizer.post_conv
+
+    @staticmethod
+    def float32(m: Masks) -> Masks:
+        """The masks in float32, the precision of the synthesis (a no-op for a float32 model)."""
+        def f(t):
+            return t.float() if t is not None and t.is_floating_point() else t
+
+        return Masks(f(m.mixture), f(m.difference), f(m.reverb), f(m.decay), m.listener_vicinity, m.source_vicinity)
 
     def stream(self, listener, yaw: float, source=None):
         """A :class:`avgs.streaming.BinauralStream` for this pose: feed mono blocks, then ``flush()``.
@@ -277,15 +292,15 @@ class SceneRenderer:
         """
         from avgs.streaming import BinauralStream
 
-        if self._model.binauralizer.post_conv is not None:
+        if self.model.binauralizer.post_conv is not None:
             raise ValueError(
                 f"{self.path or 'this checkpoint'}: trained with the time-frequency conv head (--post-conv), whose "
                 "output depends on neighbouring frames; block streaming supports only the mask model. "
                 "Use render() on the whole signal."
             )
-        m = self.masks(listener, yaw, source)
-        decay = None if self._fast.decay is None else self._fast.decay.cpu().numpy()
-        return BinauralStream(m.mixture, m.difference, self.stft, reverb=m.reverb, decay=decay)
+        with self._lock, torch.inference_mode():
+            m, _ = self._masks(listener, yaw, source)
+            return BinauralStream(self.float32(m), self.stft)
 
     def __repr__(self) -> str:
         return f"SceneRenderer({self.name!r}: {len(self._points)} audio points, {self.sample_rate} Hz)"

@@ -23,8 +23,12 @@ as :func:`avgs.dsp.stft` does for such short inputs).
 from __future__ import annotations
 
 import numpy as np
+import torch
 
-from avgs.config import STFT, STFTConfig
+from avgs import dsp
+from avgs.acoustics.reverb_tail import fill_phase, tail_power_recursive
+from avgs.acoustics.synthesis import Masks, binaural_waveform, ear_gains, ear_magnitudes
+from avgs.config import STFT, STFTConfig, SynthesisConfig
 
 
 def _hann(n: int) -> np.ndarray:
@@ -32,41 +36,26 @@ def _hann(n: int) -> np.ndarray:
     return 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(n) / n)
 
 
-def gains_of(mixture, difference) -> np.ndarray:
-    """Per-ear gains ``[2, F]``: ``m_m (1 + m_d)`` (left) and ``m_m (1 - m_d)`` (right)."""
-    m = np.asarray(mixture, dtype=np.float64).reshape(-1)
-    d = np.asarray(difference, dtype=np.float64).reshape(-1)
-    if m.shape != d.shape:
-        raise ValueError(f"mixture {m.shape} and difference {d.shape} masks must have the same length")
-    return np.stack([m * (1.0 + d), m * (1.0 - d)])
-
-
 class BinauralStream:
-    """Binauralise a mono stream block by block with fixed masks ``[F]``."""
+    """Binauralise a mono stream block by block with the fixed :class:`Masks` of one pose ([1, F])."""
 
-    def __init__(self, mixture, difference, stft: STFTConfig = STFT, reverb=None, decay=None):
+    def __init__(self, masks: Masks, stft: STFTConfig = STFT):
         if stft.win_length != stft.n_fft:
             raise ValueError(f"streaming needs win_length == n_fft, got {stft.win_length} and {stft.n_fft}")
+        shapes = [tuple(masks.mixture.shape), tuple(masks.difference.shape)]
+        if masks.reverb is not None:
+            shapes += [tuple(masks.reverb.shape[::2]), (1, *masks.decay.shape)]
+        if any(shape != (1, stft.n_freq) for shape in shapes):
+            raise ValueError(f"a stream takes the masks of one pose, [1, {stft.n_freq}] for n_fft {stft.n_fft}; got {shapes}")
         self.stft = stft
-        self.gains = gains_of(mixture, difference)  # [2, F]
-        if self.gains.shape[1] != stft.n_freq:
-            raise ValueError(f"masks have {self.gains.shape[1]} bins, expected {stft.n_freq} for n_fft {stft.n_fft}")
-        self._mixture = np.asarray(mixture, dtype=np.float32).reshape(-1)
-        self._difference = np.asarray(difference, dtype=np.float32).reshape(-1)
-        if (reverb is None) != (decay is None):
-            raise ValueError("pass both the reverberant gains [2, F] and the decay [F], or neither")
-        self._reverb = None if reverb is None else np.asarray(reverb, dtype=np.float64).reshape(2, -1)  # [2, F]
-        self._decay = None if decay is None else np.asarray(decay, dtype=np.float64).reshape(-1)  # [F]
-        if self._reverb is not None and not (self._reverb.shape[1] == self._decay.shape[0] == stft.n_freq):
-            raise ValueError(f"reverb {self._reverb.shape} and decay {self._decay.shape} must have {stft.n_freq} bins")
-        self._tail_state = None  # [1, F] float64 tensor: decayed power of the frames so far
-        if self._reverb is not None:  # float64 tensors for the tail's shared torch implementation
-            import torch
 
-            self._mixture_t = torch.from_numpy(self._mixture.astype(np.float64))[None]  # [1, F]
-            self._difference_t = torch.from_numpy(self._difference.astype(np.float64))[None]  # [1, F]
-            self._reverb_t = torch.from_numpy(self._reverb)[None]  # [1, 2, F]
-            self._decay_t = torch.from_numpy(self._decay)  # [F]
+        def f64(t):
+            return None if t is None else t.detach().to("cpu", torch.float64)
+
+        self.masks = Masks(f64(masks.mixture), f64(masks.difference), f64(masks.reverb), f64(masks.decay))
+        "The pose's masks in float64, on the CPU."
+        self.gains = ear_gains(self.masks.mixture, self.masks.difference)[0].numpy()  # [2, F]
+        self._tail_state = None  # [1, F] float64 tensor: decayed power of the frames so far
         n, hop = stft.n_fft, stft.hop_length
         self._w = _hann(n)  # [n_fft]
         self._w2 = self._w**2
@@ -107,7 +96,7 @@ class BinauralStream:
         idx = starts[:, None] + np.arange(n)[None, :]  # [m, n_fft]
         frames = self._x[idx] * self._w  # [m, n_fft]
         spec = np.fft.rfft(frames, axis=-1)  # [m, F]
-        if self._reverb is None:
+        if self.masks.reverb is None:
             ears = spec[None] * self.gains[:, None, :]  # [2, m, F]
         else:
             ears = self._with_tail(spec, t0)
@@ -122,15 +111,11 @@ class BinauralStream:
 
     def _with_tail(self, spec: np.ndarray, t0: int) -> np.ndarray:
         """Ear spectra [2, m, F] of frames spec [m, F]: sqrt((g |S|)^2 + r^2 P) with the source phase."""
-        import torch
-
-        from avgs.acoustics.reverb_tail import ear_magnitudes, fill_phase, tail_power_recursive
-
         mag = np.abs(spec)  # [m, F]
         mag_t = torch.from_numpy(np.ascontiguousarray(mag.T))[None]  # [1, F, m] float64
         # P(t) = w (P(t-1) + |S(t-1)|^2), carried from the previous block in self._tail_state
-        power, self._tail_state = tail_power_recursive(mag_t, self._decay_t, self._tail_state)
-        _, s_l, s_r = ear_magnitudes(mag_t, self._mixture_t, self._difference_t, self._reverb_t, power)
+        power, self._tail_state = tail_power_recursive(mag_t, self.masks.decay, self._tail_state)
+        _, s_l, s_r = ear_magnitudes(mag_t, self.masks, power)
         ear_mag = torch.cat([s_l, s_r]).numpy().transpose(0, 2, 1)  # [2, m, F]
         fill = fill_phase(mag.shape[1], t0, mag.shape[0]).numpy().T  # [m, F] for frames t0, t0 + 1, ...
         phase = np.where(mag > 0, spec / np.where(mag > 0, mag, 1.0), fill)
@@ -202,22 +187,11 @@ class BinauralStream:
         return self._emit(T, n_frames)
 
     def _one_shot(self, x: np.ndarray) -> np.ndarray:
-        import torch
-
-        from avgs import dsp
-        from avgs.acoustics.model import binaural_waveform
-        from avgs.config import SynthesisConfig
-
         if len(x) == 0:
             return np.zeros((2, 0), dtype=np.float32)
         with torch.inference_mode():
             spec = dsp.stft(torch.from_numpy(x.astype(np.float32))[None], self.stft)  # [1, F, N]
-            reverb = decay = None
-            if self._reverb is not None:
-                reverb = torch.from_numpy(self._reverb.astype(np.float32))[None]  # [1, 2, F]
-                decay = torch.from_numpy(self._decay.astype(np.float32))  # [F]
-            y = binaural_waveform(
-                spec, torch.from_numpy(self._mixture)[None], torch.from_numpy(self._difference)[None], len(x), self.stft,
-                reverb=reverb, decay=decay, synthesis=SynthesisConfig(phase_iterations=0),  # the streamed synthesis
-            )[0]
+            masks = Masks(*(None if t is None else t.float() for t in
+                            (self.masks.mixture, self.masks.difference, self.masks.reverb, self.masks.decay)))
+            y = binaural_waveform(spec, masks, len(x), self.stft, synthesis=SynthesisConfig(phase_iterations=0))[0]
         return y.numpy()

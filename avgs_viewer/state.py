@@ -61,10 +61,6 @@ class ViewerEvents:
         for name in self.NAMES:
             setattr(self, name, Event(name))
 
-    def disconnect_all(self, callback: Callable[[Any], None]) -> None:
-        for name in self.NAMES:
-            getattr(self, name).disconnect(callback)
-
 
 @dataclass(frozen=True)
 class Pose:
@@ -153,17 +149,6 @@ class ViewerState:
         """Move the listener in xy, kept at its own height and inside the bounds."""
         xyz = _vec3(xyz, "listener").copy()
         xyz[2] = self._listener[2]
-        xyz = self._clamp(xyz)
-        if np.array_equal(xyz, self._listener):
-            return
-        self._listener = xyz
-        self.events.listener.emit(self.listener)
-        self._emit_pose()
-
-    def set_listener_height(self, z: float) -> None:
-        """Change the listener's height (the one way to move it off its plane)."""
-        xyz = self._listener.copy()
-        xyz[2] = float(z)
         xyz = self._clamp(xyz)
         if np.array_equal(xyz, self._listener):
             return

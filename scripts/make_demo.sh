@@ -28,10 +28,10 @@ WORK=runs/demo
 
 # 3. Stage 2: G_a (from 20k of G's points), F and B, 4000 iterations on the CPU (validation MAG stops
 #    improving after 1000-2000 iterations on these scenes). The committed demo predates the
-#    direction feature at every layer of B's difference MLP, hence --direction-first-layer; on
-#    this equalised-head scene the two train alike (README "Direction at every layer").
+#    direction feature at every layer of B's difference MLP, hence --no-direction-every-layer; on
+#    this equalised-head scene the two train alike (docs/results.md "Direction at every layer").
 OMP_NUM_THREADS=1 $AVGS train "$SCENE" --out "$WORK/scene.ckpt" --max-gaussians 50000 --audio-points 20000 \
-  --iterations 4000 --eval-every 1000 --direction-first-layer
+  --iterations 4000 --eval-every 1000 --no-direction-every-layer
 
 # 4. Release: keep the points some vicinity can use over the walkable area, keep G for drawing,
 #    drop the optimizer state (the file stays under 25 MB).

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The runs behind the README's results tables, exactly as they were made.
+# The runs behind the results tables of docs/results.md, exactly as they were made.
 # Stage 1 ran on the CPU with our PyTorch rasterizer for the current tables (39-47 min per
 # scene, 4-5 runs sharing 2 cores); with CUDA the same commands use gsplat (~25 s per scene).
 # Stage 2 ran on the CPU, one torch thread per run, two runs at a time on a 2-core
@@ -46,12 +46,12 @@ done
 # (--init sfm, no stage 1), so the comparison needs no GPU.
 sfm() { run "$1" "$2" --init sfm --no-gaussians --iterations 2000 "${@:3}"; }
 # (Made before the direction feature went to every layer of B's difference MLP: first layer only.)
-OLD="--direction-encoding fourier --position-frequencies 10 --direction-first-layer"
+OLD="--direction-encoding fourier --position-frequencies 10 --no-direction-every-layer"
 for p in $PRESETS; do
   sfm ${p}_0 runs/features/old/avgs/${p}_0.ckpt $OLD
   sfm ${p}_0 runs/features/old/nocontext/${p}_0.ckpt $OLD --no-context
-  sfm ${p}_0 runs/features/new/avgs/${p}_0.ckpt --direction-first-layer
-  sfm ${p}_0 runs/features/new/nocontext/${p}_0.ckpt --no-context --direction-first-layer
+  sfm ${p}_0 runs/features/new/avgs/${p}_0.ckpt --no-direction-every-layer
+  sfm ${p}_0 runs/features/new/nocontext/${p}_0.ckpt --no-context --no-direction-every-layer
 done
 
 # Ablations on the office scene, 2000 iterations each (the val column of each log's final record).
@@ -83,13 +83,13 @@ for s in 0 1 2; do
   done
 done
 # The direction feature at every layer of B's difference MLP (the default) against the first
-# layer only (--direction-first-layer), with the control, three seeds per raw-head preset.
-# The README's numbers for these came from an H100 with the same commands
+# layer only (--no-direction-every-layer), with the control, three seeds per raw-head preset.
+# The numbers in docs/results.md for these came from an H100 with the same commands
 # (scripts/device/cli_batch.sh, two presets per call); here they run on the CPU.
 for p in office house apartment outdoor; do for s in 0 1 2; do
   DATA=data/rawhrtf sfm ${p}_0 runs/layers/avgs_s$s/${p}_0.ckpt --seed $s
   DATA=data/rawhrtf sfm ${p}_0 runs/layers/nocontext_s$s/${p}_0.ckpt --seed $s --no-context
-  DATA=data/rawhrtf sfm ${p}_0 runs/layers/firstlayer_s$s/${p}_0.ckpt --seed $s --direction-first-layer
+  DATA=data/rawhrtf sfm ${p}_0 runs/layers/firstlayer_s$s/${p}_0.ckpt --seed $s --no-direction-every-layer
 done; done
 wait
 

@@ -9,15 +9,30 @@ import pytest
 import torch
 
 from avgs import dsp
-from avgs.acoustics.binauralizer import Binauralizer, CircularEmbedding
+from avgs.acoustics.binauralizer import Binauralizer
+from avgs.acoustics.direction import signed_direction
 from avgs.acoustics.encodings import positional_encoding
 from avgs.acoustics.field import AcousticField, unit_directions
-from avgs.acoustics.model import AVGSModel, apply_masks, binaural_waveform, signed_direction
+from avgs.acoustics.model import AVGSModel
+from avgs.acoustics.synthesis import Masks, binaural_waveform
 from avgs.acoustics.points import AudioPoints, alpha_dim, alpha_from_colors, alpha_from_features, parse_alpha_spec
 from avgs.acoustics.vicinity import nearest_indices, vicinity_size
 from avgs.config import AcousticConfig
 from avgs.data.frame import direction_to_source
 from avgs.train.losses import magnitude_loss, volume_loss
+
+
+def make_b(context_dim, **cfg) -> Binauralizer:
+    return Binauralizer(AcousticConfig(**cfg), context_dim, n_freq=257, hop_seconds=128 / 22050)
+
+
+def test_retired_direction_embedding_is_refused_by_name():
+    from avgs.config import TrainConfig
+
+    stored = TrainConfig().to_dict()
+    stored["acoustic"]["direction_encoding"] = "embedding"
+    with pytest.raises(ValueError, match="embedding.*no longer"):
+        TrainConfig.from_dict(stored)
 
 
 def test_positional_encoding_widths_and_values():
@@ -41,10 +56,10 @@ def test_vicinity_matches_brute_force():
     g = torch.Generator().manual_seed(1)
     pts = torch.rand(500, 3, generator=g) * 2 - 1
     q = torch.rand(6, 3, generator=g) * 2 - 1
-    idx = nearest_indices(pts, q, 40)
+    idx = nearest_indices(pts.T.contiguous(), q, 40)
     brute = np.argsort(((pts[None] - q[:, None]) ** 2).sum(-1).numpy(), axis=1)[:, :40]
     assert np.array_equal(np.sort(idx.numpy(), axis=1), np.sort(brute, axis=1))
-    assert torch.equal(nearest_indices(pts, q[0], 40), idx[0])
+    assert torch.equal(nearest_indices(pts.T.contiguous(), q[0], 40), idx[0])
 
 
 @pytest.mark.parametrize("yaw_deg", [0.0, 37.0, 90.0, -140.0])
@@ -68,7 +83,7 @@ def test_zero_distance_gives_finite_directions_and_gradients():
     g = unit_directions(X[None], origin)  # [1, 2, 3]
     assert torch.equal(g[0, 0], torch.zeros(3))
     assert torch.allclose(g[0, 1], torch.tensor([1.0, 0.0, 0.0]))
-    field = AcousticField(alpha_dim=4, width=8, context_dim=5)
+    field = AcousticField(alpha_dim=4, width=8, layers=3, context_dim=5)
     c = field(X, torch.randn(2, 4), origin, torch.tensor([[0, 1]]))
     c.sum().backward()
     assert torch.isfinite(c).all() and torch.isfinite(X.grad).all()
@@ -87,27 +102,17 @@ def test_alpha_specs():
     assert torch.allclose(alpha_from_colors(torch.full((2, 3), 0.5), "sh")[:, :3], torch.zeros(2, 3))
 
 
-def test_circular_embedding_meets_itself_at_the_back():
-    torch.manual_seed(0)
-    emb = CircularEmbedding(12, 4)
-    ends = emb(torch.tensor([-1.0, 1.0]))
-    assert torch.allclose(ends[0], ends[1])
-    mid = emb(torch.tensor([-1.0 + 1.0 / 12]))  # halfway between entries 0 and 1
-    # float32 puts the position 3e-7 off the half-way point: weights off by as much
-    assert torch.allclose(mid[0], 0.5 * (emb.table[0] + emb.table[1]), atol=1e-6)
-
-
 def test_harmonic_direction_feature_is_periodic_and_lateral():
-    b = Binauralizer(context_dim=None, width=8, direction_encoding="harmonic", direction_harmonics=3)
+    b = make_b(None, binauralizer_width=8, direction_harmonics=3)
     theta = torch.tensor([0.5, 0.5 + 2 * math.pi, math.pi / 2, -math.pi / 2, math.pi, -math.pi])
     e = b.direction_feature(theta)  # [6, 6] = cos(n theta) (+) sin(n theta), n = 1..3
-    assert e.shape == (6, 6) and b.direction_dim == 6
+    assert e.shape == (6, 6) and b.direction_dim == 6 and b.diff_mlp[0].in_features == 8 + 6
     assert torch.allclose(e[0], e[1], atol=1e-5)  # one turn later, the same feature
     assert torch.allclose(e[4], e[5], atol=1e-5)  # continuous across the listener's back
     # sin(theta) is +1 with the source on the left, -1 on the right
     assert e[2, 3] == pytest.approx(1.0) and e[3, 3] == pytest.approx(-1.0)
     with pytest.raises(ValueError, match="direction_harmonics"):
-        Binauralizer(context_dim=None, direction_encoding="harmonic", direction_harmonics=0)
+        make_b(None, direction_harmonics=0)
 
 
 @pytest.mark.parametrize("encoding", ["fourier", "harmonic"])
@@ -119,7 +124,7 @@ def test_direction_feature_reaches_every_difference_layer(encoding):
     swings = {}
     for every in (True, False):
         torch.manual_seed(0)
-        b = Binauralizer(context_dim=6, width=16, direction_encoding=encoding, direction_every_layer=every)
+        b = make_b(6, binauralizer_width=16, direction_encoding=encoding, direction_every_layer=every)
         D = b.direction_dim
         widths = [layer.in_features for layer in b.diff_mlp]
         assert widths == ([16 + D] * 4 if every else [16 + D, 16, 16, 16])
@@ -161,13 +166,13 @@ def test_the_bundled_demo_loads_with_its_first_layer_direction(capsys):
     assert json.loads(capsys.readouterr().out)["training"]["direction_every_layer"] is False
 
 
-@pytest.mark.parametrize("encoding", ["embedding", "fourier", "harmonic"])
+@pytest.mark.parametrize("encoding", ["fourier", "harmonic"])
 @pytest.mark.parametrize("activation", ["relu", "sigmoid"])
 def test_binauralizer_mask_shapes_and_ranges(encoding, activation):
     torch.manual_seed(0)
-    b = Binauralizer(context_dim=6, width=16, mixture_activation=activation, direction_encoding=encoding,
-                     reverb_tail=True)
-    m_m, m_d, r = b(torch.rand(3, 2), torch.tensor([-3.1, 0.0, 3.1]), torch.randn(3, 6))
+    b = make_b(6, binauralizer_width=16, mixture_activation=activation, direction_encoding=encoding, reverb_tail=True)
+    out = b(torch.rand(3, 2), torch.tensor([-3.1, 0.0, 3.1]), torch.randn(3, 6))
+    m_m, m_d, r = out.mixture, out.difference, out.reverb
     assert m_m.shape == m_d.shape == (3, 257) and r.shape == (3, 2, 257)
     assert (m_m >= 0).all() and (m_d.abs() < 1).all() and (r >= 0).all()
     # every bin starts alive, at gain 0.5 (a dead relu bin would get no gradient)
@@ -175,7 +180,7 @@ def test_binauralizer_mask_shapes_and_ranges(encoding, activation):
     if activation == "sigmoid":
         assert (m_m <= 1).all()
     assert b(torch.rand(3, 2), torch.zeros(3), torch.randn(3, 6)).reverb is not None
-    plain = Binauralizer(context_dim=6, width=16, mixture_activation=activation, direction_encoding=encoding)
+    plain = make_b(6, binauralizer_width=16, mixture_activation=activation, direction_encoding=encoding, reverb_tail=False)
     assert plain(torch.rand(3, 2), torch.zeros(3), torch.randn(3, 6)).reverb is None
 
 
@@ -205,11 +210,11 @@ def test_binaural_waveform_with_unit_masks_returns_the_source():
     from avgs import dsp
 
     x = torch.randn(1, 3000)
-    y = binaural_waveform(dsp.stft(x), torch.ones(1, 257), torch.zeros(1, 257), 3000)
+    y = binaural_waveform(dsp.stft(x), Masks(torch.ones(1, 257), torch.zeros(1, 257)), 3000)
     assert y.shape == (1, 2, 3000)
     assert torch.allclose(y[0, 0], x[0], atol=1e-5) and torch.allclose(y[0, 1], x[0], atol=1e-5)
     # m_d = +0.5: left = 1.5 x, right = 0.5 x.
-    y = binaural_waveform(dsp.stft(x), torch.ones(1, 257), torch.full((1, 257), 0.5), 3000)
+    y = binaural_waveform(dsp.stft(x), Masks(torch.ones(1, 257), torch.full((1, 257), 0.5)), 3000)
     assert torch.allclose(y[0, 0], 1.5 * x[0], atol=1e-4) and torch.allclose(y[0, 1], 0.5 * x[0], atol=1e-4)
 
 
@@ -269,7 +274,6 @@ def test_volume_loss_is_bounded_below_so_minimising_it_shrinks_alpha():
 
 
 def test_post_conv_with_a_zero_residual_is_the_plain_mask_path():
-    from avgs.acoustics.model import binaural_waveform
     from avgs.acoustics.post_conv import PostConv
 
     torch.manual_seed(0)
@@ -282,8 +286,8 @@ def test_post_conv_with_a_zero_residual_is_the_plain_mask_path():
     with torch.no_grad():
         post.net[-1].weight.zero_()
         post.net[-1].bias.zero_()
-    plain = binaural_waveform(spec, mixture, difference, 9000)
-    conv = binaural_waveform(spec, mixture, difference, 9000, post_conv=post)
+    plain = binaural_waveform(spec, Masks(mixture, difference), 9000)
+    conv = binaural_waveform(spec, Masks(mixture, difference), 9000, post_conv=post)
     assert torch.isfinite(conv).all() and torch.allclose(conv, plain, atol=1e-5)
 
 

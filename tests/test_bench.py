@@ -26,13 +26,15 @@ def test_bench_quick_writes_the_report(tmp_path, capsys):
     assert headings == list(SECTIONS)
     assert "Command: `" in report and "| cpu |" in report
     for label in ("mono-mono", "mono-energy", "stereo-energy", "AV-GS vicinity 5 %", "AV-GS vicinity 25 %",
-                  "pruned to walkable (exact)", "bfloat16", "previous (c4b219a)", "naive"):
+                  "pruned to walkable (exact)", "bfloat16", "uncached", "training-mode"):
         assert label in report
     for png in ("latency.png", "speed_error.png", "points.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     results = json.loads((out / "results.json").read_text())
     assert set(results["latency"]["cpu"]["stages"]) == {"vicinity", "field", "binauralizer", "stft", "synthesis"}
     assert set(results["latency"]["cpu"]["long"]) == {"10", "60"}
+    for path in results["latency"]["cpu"]["paths"].values():  # the same model code without its caches
+        assert path["max_abs_diff"] < 1e-4
     assert {t["stage"] for t in results["training"]} == {1, 2}
     assert (out / "work" / ".gitignore").read_text() == "*\n"  # trained bench models stay out of git
 

@@ -116,7 +116,8 @@ def test_render_matches_masks_and_the_source_override(ckpt_path):
 def test_render_can_return_the_predicted_magnitudes(ckpt_path):
     """``magnitudes=True`` gives the ear magnitudes of the tail model that the waveform was made from."""
     from avgs import dsp
-    from avgs.acoustics.reverb_tail import decay_per_frame, ear_magnitudes, tail_power
+    from avgs.acoustics.reverb_tail import decay_per_frame
+    from avgs.acoustics.synthesis import Masks, ear_magnitudes
 
     r = SceneRenderer.load(ckpt_path)
     mono = np.random.default_rng(1).standard_normal(3000).astype(np.float32)
@@ -125,8 +126,9 @@ def test_render_can_return_the_predicted_magnitudes(ckpt_path):
     assert out.magnitudes.shape == (2, 257, 1 + 3000 // 128) and out.reverb is not None
     mag = dsp.magnitude(mono)[None]  # [1, F, N]
     decay = decay_per_frame(torch.from_numpy(r.rt60), 128 / 22050)
-    _, s_l, s_r = ear_magnitudes(mag, torch.from_numpy(out.mixture)[None], torch.from_numpy(out.difference)[None],
-                                 torch.from_numpy(out.reverb)[None], tail_power(mag, decay))
+    masks = Masks(torch.from_numpy(out.mixture)[None], torch.from_numpy(out.difference)[None],
+                  torch.from_numpy(out.reverb)[None], decay)
+    _, s_l, s_r = ear_magnitudes(mag, masks)  # the tail's power computed from the same source
     np.testing.assert_allclose(out.magnitudes, torch.cat([s_l, s_r]).numpy(), rtol=1e-4, atol=1e-6)
     # the waveform is their iSTFT with the source phase: its own magnitudes are close, not equal
     resynth = dsp.magnitude(out.binaural).numpy()

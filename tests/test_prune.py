@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from avgs.acoustics.prune import (
+from avgs.prune import (
     cell_centres,
     checkpoint_bytes,
     current_k,

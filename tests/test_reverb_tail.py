@@ -9,15 +9,8 @@ import pytest
 import torch
 
 from avgs import dsp
-from avgs.acoustics.model import apply_masks, binaural_waveform
-from avgs.acoustics.reverb_tail import (
-    BLOCK_FRAMES,
-    ReverbTail,
-    decay_per_frame,
-    ear_magnitudes,
-    tail_power,
-    tail_power_recursive,
-)
+from avgs.acoustics.reverb_tail import BLOCK_FRAMES, ReverbTail, decay_per_frame, tail_power, tail_power_recursive
+from avgs.acoustics.synthesis import Masks, binaural_waveform, ear_magnitudes
 from avgs.checkpoint import untrained_checkpoint
 from avgs.config import STFT, SynthesisConfig, TrainConfig
 from avgs.data.frame import SceneFrame
@@ -79,9 +72,9 @@ def test_zero_reverberant_gain_is_the_paper_mask_model():
     g = torch.Generator().manual_seed(2)
     mag = torch.rand(3, 257, 20, generator=g)
     mixture, difference = torch.rand(3, 257, generator=g), torch.rand(3, 257, generator=g) * 2 - 1
-    power = tail_power(mag, torch.full((257,), 0.9))
-    ours = ear_magnitudes(mag, mixture, difference, torch.zeros(3, 2, 257), power)
-    paper = apply_masks(mag, mixture, difference)
+    ours = ear_magnitudes(mag, Masks(mixture, difference, torch.zeros(3, 2, 257), torch.full((257,), 0.9)))
+    s_m = mag * mixture[..., None]
+    paper = (s_m, s_m + s_m * difference[..., None], s_m - s_m * difference[..., None])  # the paper's formulas
     for a, b in zip(ours, paper):
         assert torch.allclose(a, b, atol=1e-6)
 
@@ -95,9 +88,8 @@ def test_the_tail_fills_the_silence_after_a_burst():
     spec = dsp.stft(x[None])  # [1, F, N]
     ones, zeros = torch.ones(1, 257), torch.zeros(1, 257)
     rt60 = torch.full((257,), 0.4)
-    dry = binaural_waveform(spec, ones, zeros, sr)[0]
-    wet = binaural_waveform(spec, ones, zeros, sr, reverb=torch.full((1, 2, 257), 0.3),
-                            decay=decay_per_frame(rt60, HOP_S))[0]
+    dry = binaural_waveform(spec, Masks(ones, zeros), sr)[0]
+    wet = binaural_waveform(spec, Masks(ones, zeros, torch.full((1, 2, 257), 0.3), decay_per_frame(rt60, HOP_S)), sr)[0]
 
     def level(y, t0, t1):  # dB of the mean power in [t0, t1) seconds
         seg = y[:, int(t0 * sr) : int(t1 * sr)]
@@ -117,13 +109,13 @@ def test_rt60_and_gains_are_learned_from_a_known_decay():
     true_power = tail_power(mag, decay_per_frame(torch.full((F,), 0.3), HOP_S))
     gains = torch.full((16, 2, F), 0.5)
     mixture, difference = torch.full((16, F), 0.8), torch.zeros(16, F)
-    _, t_l, t_r = ear_magnitudes(mag, mixture, difference, gains, true_power)
+    _, t_l, t_r = ear_magnitudes(mag, Masks(mixture, difference, gains, torch.ones(F)), true_power)
 
     tail = ReverbTail(F, width=4, hop_seconds=HOP_S, init_rt60=0.5)
     features = torch.zeros(16, F, 4)
     opt = torch.optim.Adam(tail.parameters(), lr=0.05)
     for _ in range(300):
-        _, s_l, s_r = ear_magnitudes(mag, mixture, difference, tail.gains(features), tail_power(mag, tail.decay()))
+        _, s_l, s_r = ear_magnitudes(mag, Masks(mixture, difference, tail.gains(features), tail.decay()))
         loss = (s_l - t_l).square().mean() + (s_r - t_r).square().mean()
         opt.zero_grad()
         loss.backward()

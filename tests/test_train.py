@@ -309,4 +309,38 @@ def test_train_flags_set_the_direction_layers():
     add_arguments(parser)
     parse = lambda *flags: config_from_args(parser.parse_args(["S", "--out", "x.ckpt", *flags]))  # noqa: E731
     assert parse().acoustic.direction_every_layer is True
-    assert parse("--direction-first-layer").acoustic.direction_every_layer is False
+    assert parse("--no-direction-every-layer").acoustic.direction_every_layer is False
+
+
+def test_every_training_field_is_a_flag_with_its_docstring_as_help():
+    """The flags of ``avgs train`` are generated from TrainConfig: every field of its sections
+    has one, its help is the field's docstring, and a flag sets exactly its field."""
+    import argparse
+    import dataclasses
+
+    from avgs.commands.flags import field_help, flag_name
+    from avgs.commands.train import SECTIONS, add_arguments, config_from_args
+    from avgs.config import TrainConfig
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    helps = {s: a.help for a in parser._actions for s in a.option_strings}
+    defaults = TrainConfig()
+    for path, prefix in SECTIONS.items():
+        section = getattr(defaults, path) if path else defaults
+        for f in dataclasses.fields(section):
+            if dataclasses.is_dataclass(getattr(section, f.name)):
+                continue
+            flag = "--" + flag_name(f, prefix)
+            doc = field_help(type(section), f.name)
+            assert doc and flag in helps and helps[flag].startswith(doc.replace("%", "%%")), flag
+    parse = lambda *flags: config_from_args(parser.parse_args(["S", "--out", "x.ckpt", *flags]))  # noqa: E731
+    cfg = parse("--iterations", "123", "--no-context", "--stage1-iterations", "7", "--points-prune-every", "9",
+                "--init", "sfm", "--no-point-management", "--audio-points", "50")
+    assert (cfg.acoustic.iterations, cfg.acoustic.use_context, cfg.gaussians.iterations) == (123, False, 7)
+    assert (cfg.points.prune_every, cfg.init, cfg.points.enabled, cfg.points.initial_points) == (9, "sfm", False, 50)
+    assert parse().to_dict() == TrainConfig().to_dict()  # nothing given, nothing changed
+    with pytest.raises(ValueError, match="vicinity percentile"):
+        parse("--vicinity-percentile", "0")
+    with pytest.raises(SystemExit):
+        parse("--direction-encoding", "embedding")  # retired: not among the choices

@@ -17,7 +17,8 @@ import pyvista as pv  # noqa: E402
 
 from avgs.checkpoint import save_checkpoint, untrained_checkpoint  # noqa: E402
 from avgs.data.frame import SceneFrame  # noqa: E402
-from avgs.inference import SH_C0, SceneRenderer  # noqa: E402
+from avgs.gaussians.sh import SH_C0  # noqa: E402
+from avgs.inference import SceneRenderer  # noqa: E402
 from avgs_viewer import app, colors  # noqa: E402
 from avgs_viewer.bench import orbit_fps  # noqa: E402
 from avgs_viewer.drag import DragController  # noqa: E402

@@ -9,7 +9,6 @@
 from __future__ import annotations
 
 import torch
-from torch import nn
 
 
 def encoded_dim(in_dim: int, n_frequencies: int, include_input: bool = True) -> int:
@@ -26,19 +25,3 @@ def positional_encoding(x: torch.Tensor, n_frequencies: int, include_input: bool
     parts = [x] if include_input else []
     parts += [torch.sin(scaled), torch.cos(scaled)]
     return torch.cat(parts, dim=-1)
-
-
-class PositionalEncoding(nn.Module):
-    """Module wrapper of :func:`positional_encoding` (no parameters)."""
-
-    def __init__(self, in_dim: int, n_frequencies: int = 10, include_input: bool = True):
-        super().__init__()
-        self.in_dim = in_dim
-        self.n_frequencies = n_frequencies
-        self.include_input = include_input
-        self.out_dim = encoded_dim(in_dim, n_frequencies, include_input)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if x.shape[-1] != self.in_dim:
-            raise ValueError(f"expected [..., {self.in_dim}], got {tuple(x.shape)}")
-        return positional_encoding(x, self.n_frequencies, self.include_input)

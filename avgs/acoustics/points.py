@@ -19,6 +19,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from avgs.gaussians.sh import rgb_to_sh
+
 ALPHA_KINDS: dict[str, int] = {"sh": 48, "r": 4, "s": 3, "o": 1}
 "Parameters of G usable for alpha, with their widths."
 
@@ -80,7 +82,7 @@ def alpha_from_colors(colors: torch.Tensor, spec: str) -> torch.Tensor:
     colors = torch.as_tensor(colors).float().reshape(-1, 3)  # [N, 3] in [0, 1]
     n = len(colors)
     sh = torch.zeros(n, 16, 3)
-    sh[:, 0] = (colors - 0.5) / 0.28209479177387814  # RGB -> SH degree-0 coefficient
+    sh[:, 0] = rgb_to_sh(colors)  # RGB -> SH degree-0 coefficient
     quat = torch.zeros(n, 4)
     quat[:, 0] = 1.0
     feats = {"sh": sh.reshape(n, 48), "r": quat, "s": torch.zeros(n, 3), "o": torch.zeros(n, 1)}

@@ -5,7 +5,7 @@ source but never puts energy where the source is silent, so the reverberant tail
 room adds after every onset is lost. Per clip, the best possible time-invariant mask
 (fitted to the ground truth of that very clip) reaches only about 0.63x Stereo-Energy's
 MAG on our scenes, where a model with this tail reaches 0.66x from the training clips
-alone (README, "Reverberant tail").
+alone (docs/paper-deviations.md, "Reverberant tail").
 
 The tail follows the statistical model of late reverberation used in dereverberation
 (Lebart et al. 2001; Habets 2007): in a diffuse field the reverberant power at frame t
@@ -161,28 +161,3 @@ def fill_phase(n_freq: int, first_frame: int, n_frames: int, device=None) -> tor
     h = ((f * 73856093) ^ (t * 19349663)) % 65536  # [F, N_t]
     angle = h.to(torch.float32) * (2 * math.pi / 65536)
     return torch.polar(torch.ones_like(angle), angle)
-
-
-def ear_magnitudes(mono_mag: torch.Tensor, mixture: torch.Tensor, difference: torch.Tensor,
-                   reverb: torch.Tensor | None = None, power: torch.Tensor | None = None):
-    """Predicted magnitudes ``(s_m, s_l, s_r)``, each [B, F, N_t].
-
-    mono_mag [B, F, N_t]; masks [B, F]; ``reverb`` [B, 2, F] gains and ``power`` [B, F, N_t]
-    (:func:`tail_power`) for the tail, or both None for the paper's mask model
-    (``s_m = |S| m_m``, ``s_l = s_m (1 + m_d)``, ``s_r = s_m (1 - m_d)``). With a tail the
-    mixture is the mean of the two ears, which is the paper's ``s_m`` when ``r = 0``.
-    """
-    s_m = mono_mag * mixture[..., None]
-    s_d = s_m * difference[..., None]
-    s_l, s_r = s_m + s_d, s_m - s_d
-    if reverb is None:
-        return s_m, s_l, s_r
-    s_l = _sqrt0(s_l.square() + reverb[:, 0, :, None].square() * power)
-    s_r = _sqrt0(s_r.square() + reverb[:, 1, :, None].square() * power)
-    return 0.5 * (s_l + s_r), s_l, s_r
-
-
-def _sqrt0(x: torch.Tensor) -> torch.Tensor:
-    """sqrt(x) for x >= 0, exactly 0 at 0 (silence stays silent), with a finite gradient there."""
-    tiny = torch.finfo(x.dtype).tiny
-    return torch.where(x > tiny, torch.sqrt(x.clamp_min(tiny)), torch.zeros_like(x))

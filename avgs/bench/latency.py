@@ -1,5 +1,5 @@
 """Inference latency per pose: whole renders, the stages inside them, long inputs,
-before/after the fast path, and reduced precision.
+the same model without its caches, and reduced precision.
 
 A "pose" is one call of :meth:`SceneRenderer.render` on a 1 s clip at a new listener
 position (the source stays put, so C_S comes from the cache, as in the viewer). Poses
@@ -9,15 +9,10 @@ percentile) over ``repeats`` calls after ``warmup`` untimed ones.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 
 from avgs.bench.timing import Stopwatch, Timing, time_calls
-
-STAGES = ("vicinity", "field", "binauralizer", "stft", "synthesis")
-
 
 def _sync(device) -> None:
     if torch.device(device).type == "cuda":
@@ -49,21 +44,19 @@ def time_render(render, poses, mono, repeats: int, warmup: int = 3, device="cpu"
 
 
 def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
-    """Time the fast path's stages one by one, as :meth:`SceneRenderer.render` runs them."""
+    """Time the stages of :meth:`SceneRenderer.render` one by one, with its caches."""
     from avgs import dsp
-    from avgs.acoustics.fast import signed_direction
-    from avgs.acoustics.model import binaural_waveform
+    from avgs.acoustics.synthesis import binaural_waveform
 
-    fast = renderer._fast
+    model, cache = renderer.model, renderer.cache
     dev = renderer.device
-    cached = fast.source_context(tuple(float(v) for v in renderer._source_n))
     sw = Stopwatch()
     x = torch.from_numpy(mono)
     with torch.inference_mode():
         for i in range(repeats + 3):
             lis_w, yaw = poses[i % len(poses)]
-            lis = tuple(float(v) for v in renderer.frame.to_normalised(lis_w))
-            theta = signed_direction(lis, math.radians(yaw), renderer._source_n)
+            lis, theta, src = renderer.pose(lis_w, yaw)
+            c_s, _ = renderer.source_context(src)
             timed = i >= 3
 
             def run(name, fn):
@@ -74,31 +67,26 @@ def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
                     _sync(dev)
                 return out
 
-            idx = run("vicinity", lambda: fast.vicinity(lis))
+            idx = run("vicinity", lambda: model.vicinity(lis, cache))
             ctx = None
-            if fast.use_context:
-                c_l = run("field", lambda: fast.context(lis, idx))
-                ctx = torch.cat([cached[0], c_l])
-            mix, diff, reverb = run("binauralizer", lambda: fast.binauralize(lis[:2], theta, ctx))
+            if model.field is not None:
+                c_l = run("field", lambda: model.context_at(lis, idx, cache))
+                ctx = torch.cat([c_s[None], c_l], dim=-1)
+            masks = run("binauralizer", lambda: model.binauralizer(lis[:, :2], theta, ctx, cache.frequency))
             spec = run("stft", lambda: dsp.stft(x.to(dev)[None], renderer.stft))
-            reverb = None if reverb is None else reverb[None]  # [1, 2, F]
             # masks (and the reverberant tail, if any) applied, then the inverse STFT and the phase iterations
-            run("synthesis", lambda: binaural_waveform(spec, mix[None], diff[None], mono.size, renderer.stft,
-                                                       reverb=reverb, decay=fast.decay, synthesis=renderer.synthesis).cpu())
+            run("synthesis", lambda: binaural_waveform(spec, renderer.float32(masks), mono.size, renderer.stft,
+                                                       renderer.post_conv, renderer.synthesis).cpu())
     return sw.timings()
 
 
 def with_precision(renderer, dtype: torch.dtype):
-    """A copy of ``renderer`` whose fast path runs its networks in ``dtype`` (for measurement)."""
-    import copy
+    """The same scene with its networks in ``dtype`` (for measurement)."""
+    from avgs.checkpoint import load_checkpoint
+    from avgs.inference import SceneRenderer
 
-    from avgs.acoustics.fast import FastMasks
-
-    other = copy.copy(renderer)
-    other._fast = FastMasks(renderer._model, dtype=dtype)
-    other._source_cache = None
-    other._lock = type(renderer._lock)()
-    return other
+    return SceneRenderer(load_checkpoint(renderer.path), device=renderer.device, path=renderer.path,
+                         synthesis=renderer.synthesis, dtype=dtype)
 
 
 def precision_error(renderer, other, poses, mono) -> float:
@@ -114,7 +102,7 @@ def precision_error(renderer, other, poses, mono) -> float:
 def measure(renderer, repeats: int = 50, long_seconds=(10.0, 60.0), long_repeats: int = 3, compare: bool = True,
             precisions=("bfloat16",), progress=None) -> dict:
     """All latency figures of one renderer (its device); see the module docstring."""
-    from avgs.bench.reference import NaivePath, PreviousPath
+    from avgs.bench.reference import TrainingModePath, UncachedPath
 
     dev = renderer.device
     sr = renderer.sample_rate
@@ -136,10 +124,10 @@ def measure(renderer, repeats: int = 50, long_seconds=(10.0, 60.0), long_repeats
     say(f"latency ({dev}): stages")
     out["stages"] = {k: v.to_dict() for k, v in stage_breakdown(renderer, poses, mono, repeats).items()}
     if compare:
-        for path_cls in (PreviousPath, NaivePath):
+        for path_cls in (UncachedPath, TrainingModePath):
             say(f"latency ({dev}): {path_cls.name}")
             path = path_cls(renderer)
-            n = repeats if path_cls is PreviousPath else max(5, repeats // 3)
+            n = repeats if path_cls is UncachedPath else max(5, repeats // 3)
             t = time_render(path.render, poses, mono, n, device=dev)
             err = max(float(np.max(np.abs(path.render(l, y, mono) - renderer.render(l, y, mono).binaural))) for l, y in poses[:4])
             out.setdefault("paths", {})[path_cls.name] = {**t.to_dict(), "max_abs_diff": err}

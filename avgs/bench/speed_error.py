@@ -5,7 +5,7 @@ Every point is (latency per pose, MAG, ENV) on a scene's val clips:
 - the three baselines (oracle energy for two of them), timed per clip;
 - AV-GS at vicinity 5/10/15/20/25 % (one model trained per setting);
 - AV-GS at point budgets: the 15 % model pruned exactly to the walkable area
-  (:mod:`avgs.acoustics.prune`), then random subsets of it (k at 15 % of the subset);
+  (:mod:`avgs.prune`), then random subsets of it (k at 15 % of the subset);
 - AV-GS at 0, 2 and 8 phase iterations of the synthesis (the 15 % model; 8 is the default);
 - AV-GS in reduced precision (bfloat16 on the CPU, float16 on CUDA) where it runs;
 - the simulator that made the scene (pyroomacoustics, image-source order 0..10, with
@@ -31,7 +31,7 @@ import torch
 
 from avgs.bench.latency import random_poses, test_signal, time_render, with_precision
 from avgs.bench.timing import Timing
-from avgs.config import SynthesisConfig
+from avgs.config import STFT, SynthesisConfig
 
 VICINITIES = (5.0, 10.0, 15.0, 20.0, 25.0)
 BUDGET_FRACTIONS = (0.5, 0.25, 0.1, 0.05)
@@ -173,7 +173,7 @@ def simulator_points(scene_dir, scene, orders=SIM_ORDERS, ray_tracing=(False, Tr
         base = sim.load_settings(scene_dir)
     except (FileNotFoundError, ValueError, AttributeError):
         base = sim.SimSettings()
-    sr = scene.stft.sample_rate if hasattr(scene, "stft") else 22050
+    sr = scene.stft.sample_rate if hasattr(scene, "stft") else STFT.sample_rate
     mono_full = read_wav(Path(scene_dir) / SOURCE_FILE, 1, sr)[0].astype(np.float64)  # [L]
     clips = scene.val[:max_poses]
     rows = []
@@ -220,10 +220,9 @@ def bench_scene(scene_dir, work: Path, *, iterations: int, n_points: int, repeat
                 budgets=BUDGET_FRACTIONS, orders=SIM_ORDERS, sim_poses: int = 4, cuda: bool = False,
                 progress=None) -> dict:
     """All speed-against-error rows of one scene, plus the point-budget curve."""
-    from avgs.acoustics.prune import checkpoint_bytes, prune_checkpoint, subsample_checkpoint
+    from avgs.prune import checkpoint_bytes, prune_checkpoint, scene_listener_box, subsample_checkpoint
     from avgs.baselines import BASELINES
     from avgs.checkpoint import load_checkpoint, save_checkpoint
-    from avgs.commands.prune import scene_listener_box
     from avgs.data.rwavs import RWAVSScene
     from avgs.inference import SceneRenderer
 

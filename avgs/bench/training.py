@@ -27,7 +27,7 @@ def _stage2(scene_dir: str, n_points: int, vicinity: float, iterations: int, dev
     scene = RWAVSScene(scene_dir)
     cfg = bench_config(10_000, vicinity, n_points, device)
     cfg.points.enabled = False  # a fixed N, so that the rate is that of N points
-    model = AVGSModel(initial_points(scene, n_points), cfg.acoustic, cfg.stft.n_freq, stft=cfg.stft)
+    model = AVGSModel(initial_points(scene, n_points), cfg.acoustic, cfg.stft)
     trainer = Stage2Trainer(model, scene.dataset("train", cfg.stft), cfg, device)
     for _ in range(3):
         trainer.step()

@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 
 from avgs.baselines import BASELINES
-from avgs.config import SynthesisConfig, field_help
+from avgs.commands.flags import field_help
+from avgs.config import SynthesisConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -3,7 +3,7 @@
 The region where listeners (and the source) may go is, in order: ``--region`` (world
 box), the listener poses of ``--scene`` widened by ``--margin``, or the checkpoint's
 scene bounds (the most conservative). Inside it the pruned model's masks equal the
-original's (:mod:`avgs.acoustics.prune`). G is dropped unless ``--keep-gaussians``.
+original's (:mod:`avgs.prune`). G is dropped unless ``--keep-gaussians``.
 """
 
 from __future__ import annotations
@@ -23,26 +23,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--keep-gaussians", action="store_true", help="Keep G (for drawing) in the pruned checkpoint.")
 
 
-def scene_listener_box(scene_dir, margin: float):
-    """World box [2, 3] around a scene's train and val listener positions, widened by ``margin``."""
-    import numpy as np
-
-    from avgs.data.rwavs import RWAVSScene
-
-    scene = RWAVSScene(scene_dir)
-    clips = scene.train + scene.val
-    if not clips:
-        raise ValueError(f"{scene_dir}: no listener poses to take a region from")
-    world = scene.frame.to_world(np.stack([c.listener for c in clips]).astype(np.float64))  # [P, 3]
-    return np.stack([world.min(0) - margin, world.max(0) + margin]), world
-
-
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     import numpy as np
 
-    from avgs.acoustics.prune import prune_checkpoint
+    from avgs.prune import prune_checkpoint, scene_listener_box
     from avgs.checkpoint import load_checkpoint, save_checkpoint
 
     ckpt = load_checkpoint(args.checkpoint)

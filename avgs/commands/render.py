@@ -6,7 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from avgs.config import SynthesisConfig, field_help
+from avgs.commands.flags import field_help
+from avgs.config import SynthesisConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from avgs.config import field_help
+from avgs.commands.flags import field_help
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -1,12 +1,20 @@
 """``avgs train DATA_ROOT/SCENE_ID --out scene.ckpt``: both stages, with progress bars,
 a JSON-lines log (``scene.ckpt.log.jsonl``) and loss / point-count curves
-(``scene.ckpt.curves.png``) next to the checkpoint."""
+(``scene.ckpt.curves.png``) next to the checkpoint.
+
+The model's flags are generated from :class:`avgs.config.TrainConfig` (:mod:`avgs.commands.flags`);
+the ones written here are about the run itself.
+"""
 
 from __future__ import annotations
 
 import argparse
 
-from avgs.config import DIRECTION_ENCODINGS, AcousticConfig, GaussianConfig, PointManagementConfig, TrainConfig, field_help
+from avgs.commands.flags import add_config_flags, apply_config_flags
+from avgs.config import TrainConfig
+
+SECTIONS = {"": "", "acoustic": "", "points": "points-", "gaussians": "stage1-"}
+"TrainConfig's sections that get flags, with their flag prefixes (stft is AV-NeRF's and fixed)."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -14,42 +22,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="scene.ckpt", help="Checkpoint to write (atomically).")
     parser.add_argument("--quick", action="store_true", help="Tiny preset for tests: few iterations, small images.")
     parser.add_argument("--resume", action="store_true", help="Continue from the training state saved in --out.")
-    parser.add_argument("--stage1-iterations", type=int, metavar="N", help=field_help(GaussianConfig, "iterations"))
-    parser.add_argument("--image-downscale", type=int, metavar="F", help=field_help(GaussianConfig, "image_downscale"))
-    parser.add_argument("--max-gaussians", type=int, metavar="N", help=field_help(GaussianConfig, "max_gaussians"))
     parser.add_argument("--stage1-only", action="store_true",
                         help="Run stage 1 alone (frames and poses, no audio read) and write OUT.stage1.pt, which a "
                              "later run with the same --out and settings reuses.")
     parser.add_argument("--stage1", metavar="FILE",
                         help="Take G from this stage-1 file (from --stage1-only) instead of training it; "
                              "lets several stage-2 runs share one G.")
-    parser.add_argument("--iterations", type=int, metavar="N", help=field_help(AcousticConfig, "iterations"))
-    parser.add_argument("--vicinity-percentile", type=float, metavar="P", help=field_help(AcousticConfig, "vicinity_percentile"))
-    parser.add_argument("--alpha-init", metavar="SPEC", help=field_help(AcousticConfig, "alpha_init") + " (sh+r, sh, r, s, o, ...)")
-    parser.add_argument("--init", choices=("gs", "sfm"), help=field_help(TrainConfig, "init"))
-    parser.add_argument("--audio-points", type=int, metavar="N", help=field_help(PointManagementConfig, "initial_points"))
-    parser.add_argument("--no-point-management", action="store_true", help="Turn audio-aware densification and pruning off.")
-    parser.add_argument("--no-context", action="store_true", help="Drop the scene context C (the control model).")
-    parser.add_argument("--post-conv", dest="post_conv", action="store_true", default=None,
-                        help=field_help(AcousticConfig, "post_conv"))
-    parser.add_argument("--no-post-conv", dest="post_conv", action="store_false")
-    parser.add_argument("--reverb-tail", dest="reverb_tail", action="store_true", default=None,
-                        help=field_help(AcousticConfig, "reverb_tail"))
-    parser.add_argument("--no-reverb-tail", dest="reverb_tail", action="store_false",
-                        help="B with the paper's time-invariant masks only (no reverberant tail).")
-    parser.add_argument("--direction-encoding", choices=DIRECTION_ENCODINGS,
-                        help=field_help(AcousticConfig, "direction_encoding"))
-    parser.add_argument("--direction-harmonics", type=int, metavar="K", help=field_help(AcousticConfig, "direction_harmonics"))
-    parser.add_argument("--position-frequencies", type=int, metavar="N", help=field_help(AcousticConfig, "position_frequencies"))
-    parser.add_argument("--direction-first-layer", dest="direction_every_layer", action="store_false", default=None,
-                        help="Give B's difference MLP the direction feature at its first layer only (the paper's "
-                             "text; the default gives it to every layer).")
-    parser.add_argument("--no-gaussians", action="store_true", help="Do not store G in the checkpoint.")
-    parser.add_argument("--device", choices=("cpu", "cuda"), help=field_help(TrainConfig, "device"))
-    parser.add_argument("--seed", type=int, help=field_help(TrainConfig, "seed"))
-    parser.add_argument("--checkpoint-every", type=int, metavar="N", help=field_help(TrainConfig, "checkpoint_every"))
-    parser.add_argument("--eval-every", type=int, metavar="N", help=field_help(TrainConfig, "eval_every"))
     parser.add_argument("--no-progress", action="store_true", help="Hide the progress bars.")
+    defaults = TrainConfig()
+    titles = {"": "run", "acoustic": "stage 2: G_a, F and B", "points": "audio point management", "gaussians": "stage 1: 3D-GS"}
+    for path, prefix in SECTIONS.items():
+        add_config_flags(parser, {path: (getattr(defaults, path) if path else defaults, prefix)}, titles[path])
 
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
@@ -57,42 +40,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     from avgs.acoustics.points import parse_alpha_spec
     from avgs.train.pipeline import quick_config
 
-    cfg = quick_config() if args.quick else TrainConfig()
-    for flag, (obj, name) in {
-        "stage1_iterations": (cfg.gaussians, "iterations"),
-        "image_downscale": (cfg.gaussians, "image_downscale"),
-        "max_gaussians": (cfg.gaussians, "max_gaussians"),
-        "iterations": (cfg.acoustic, "iterations"),
-        "vicinity_percentile": (cfg.acoustic, "vicinity_percentile"),
-        "alpha_init": (cfg.acoustic, "alpha_init"),
-        "post_conv": (cfg.acoustic, "post_conv"),
-        "reverb_tail": (cfg.acoustic, "reverb_tail"),
-        "direction_encoding": (cfg.acoustic, "direction_encoding"),
-        "direction_harmonics": (cfg.acoustic, "direction_harmonics"),
-        "position_frequencies": (cfg.acoustic, "position_frequencies"),
-        "direction_every_layer": (cfg.acoustic, "direction_every_layer"),
-        "audio_points": (cfg.points, "initial_points"),
-        "init": (cfg, "init"),
-        "device": (cfg, "device"),
-        "seed": (cfg, "seed"),
-        "checkpoint_every": (cfg, "checkpoint_every"),
-        "eval_every": (cfg, "eval_every"),
-    }.items():
-        value = getattr(args, flag)
-        if value is not None:
-            setattr(obj, name, value)
-    if cfg.acoustic.iterations < 1 or cfg.gaussians.iterations < 0:
-        raise ValueError("--iterations must be >= 1 and --stage1-iterations >= 0")
-    if cfg.gaussians.image_downscale < 1 or cfg.gaussians.max_gaussians < 1:
-        raise ValueError("--image-downscale and --max-gaussians must be >= 1")
-    if not 0 < cfg.acoustic.vicinity_percentile <= 100:
-        raise ValueError(f"--vicinity-percentile must be in (0, 100], got {cfg.acoustic.vicinity_percentile}")
-    if cfg.acoustic.direction_harmonics < 1 or cfg.acoustic.position_frequencies < 0:
-        raise ValueError("--direction-harmonics must be >= 1 and --position-frequencies >= 0")
+    cfg = apply_config_flags(args, quick_config() if args.quick else TrainConfig()).validate()
     parse_alpha_spec(cfg.acoustic.alpha_init)
-    cfg.points.enabled = not args.no_point_management
-    cfg.acoustic.use_context = not args.no_context
-    cfg.store_gaussians = not args.no_gaussians
     if cfg.device == "cuda":
         import torch
 

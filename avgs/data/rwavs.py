@@ -69,10 +69,6 @@ class AudioClip:
     mono: np.ndarray  # [T] float32, the source signal
     binaural: np.ndarray  # [2, T] float32, channel 0 = left ear
 
-    @property
-    def num_samples(self) -> int:
-        return int(self.mono.shape[-1])
-
 
 @dataclass(frozen=True)
 class _PoseEntry:

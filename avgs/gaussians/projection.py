@@ -13,7 +13,6 @@ with a dummy depth so that no 0/0 reaches the gradients.
 
 from __future__ import annotations
 
-import math
 
 import torch
 
@@ -92,8 +91,3 @@ def project_gaussians(
         ok = in_range & (det > 0) & on_image & torch.isfinite(radius)
         radii = torch.where(ok, radius, torch.zeros_like(radius)).to(torch.int32)
     return {"means2d": means2d, "conics": conics, "depths": z, "radii": radii}
-
-
-def tile_grid(width: int, height: int, tile_size: int) -> tuple[int, int]:
-    """(tiles across, tiles down)."""
-    return math.ceil(width / tile_size), math.ceil(height / tile_size)

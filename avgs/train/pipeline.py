@@ -163,7 +163,7 @@ def train_scene(
         log.write({"stage": "stage1", "event": "done", "seconds": time.perf_counter() - t0, "points": points.num_points})
 
     torch.manual_seed(cfg.seed)
-    model = AVGSModel(points, cfg.acoustic, cfg.stft.n_freq, stft=cfg.stft)
+    model = AVGSModel(points, cfg.acoustic, cfg.stft)
     if resumed is not None:
         if model.field is not None:
             model.field.load_state_dict(resumed["field"])

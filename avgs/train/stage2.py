@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from avgs.acoustics.model import AVGSModel, binaural_waveform
+from avgs.acoustics.model import AVGSModel
+from avgs.acoustics.synthesis import binaural_waveform
 from avgs.config import TrainConfig
 from avgs.point_management import AudioPointManager
 from avgs.train.losses import magnitude_loss, total_loss, volume_loss
@@ -118,9 +119,7 @@ class Stage2Trainer:
             sl = slice(i, i + chunk)
             m = self.model.masks(data.listener[sl].to(self.device), data.theta[sl].to(self.device), source, cached)
             spec = data.mono_stft[sl].to(self.device)
-            b = self.model.binauralizer
-            out.append(binaural_waveform(spec, m.mixture, m.difference, data.mono.shape[-1], self.cfg.stft,
-                                         b.post_conv, m.reverb, None if b.reverb is None else b.reverb.decay()).cpu())
+            out.append(binaural_waveform(spec, m, data.mono.shape[-1], self.cfg.stft, self.model.binauralizer.post_conv).cpu())
         return torch.cat(out)
 
     def evaluate(self, data) -> dict:

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Device: stage-2 runs of the raw-head scenes named in $SCENES through the avgs CLI, then
 # avgs eval of the checkpoint folders there (baselines are scored at home on the same files).
-# Per scene and seed 0-2: AV-GS, --no-context and --direction-first-layer, 2000 iterations,
-# G_a from the geometry (--init sfm), 16 runs at a time sharing the GPU. Made the README's
+# Per scene and seed 0-2: AV-GS, --no-context and --no-direction-every-layer, 2000 iterations,
+# G_a from the geometry (--init sfm), 16 runs at a time sharing the GPU. Made docs/results.md's
 # "Direction at every layer" table, two scenes per call (the 64 MiB a call may carry):
 #   .venv/bin/python scripts/device/prepare.py data/rawhrtf/outdoor_0 data/rawhrtf/apartment_0
 #   device run: SCENES="outdoor_0 apartment_0" bash scripts/device/cli_batch.sh
@@ -21,7 +21,7 @@ D=.gpu/data/${DATA:-rawhrtf}
 for sc in $SCENES; do for s in 0 1 2; do
   echo "$sc avgs_s$s --seed $s" >> $jobs_file
   echo "$sc nocontext_s$s --seed $s --no-context" >> $jobs_file
-  [ -n "${NO_FIRST:-}" ] || echo "$sc firstlayer_s$s --seed $s --direction-first-layer" >> $jobs_file
+  [ -n "${NO_FIRST:-}" ] || echo "$sc firstlayer_s$s --seed $s --no-direction-every-layer" >> $jobs_file
 done; done
 timeout 480 xargs -P ${P:-16} -L 1 bash -c 'mkdir -p '$R'/$1; python3 scripts/device/avgs_gpu.py train '$D'/$0 --out '$R'/$1/$0.ckpt '"$COMMON"' "${@:2}" > '$R'/$1/$0.out 2>&1' < $jobs_file
 echo "trained in $(( $(date +%s) - T0 )) s"

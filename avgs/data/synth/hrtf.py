@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from avgs.config import STFT
+
 KEMAR_FILE = "data/mit_kemar_normal_pinna.bz2"
 KEMAR_RATE = 44100
 _NUMPY_GLOBALS = {
@@ -129,7 +131,7 @@ def diffuse_field_equalised(irs: np.ndarray, taps: int, max_boost_db: float = 20
 
 
 @functools.lru_cache(maxsize=4)
-def kemar(sample_rate: int = 22050, equalised: bool = True) -> HRIRSet:
+def kemar(sample_rate: int = STFT.sample_rate, equalised: bool = True) -> HRIRSet:
     """The KEMAR HRIRs resampled to ``sample_rate`` (polyphase), diffuse-field equalised
     unless ``equalised=False`` (cached per process)."""
     from math import gcd

@@ -14,9 +14,11 @@ The train part of a scene plays ``speech``; the val part plays ``music``
 from __future__ import annotations
 
 import numpy as np
+
+from avgs.config import STFT
 from scipy.signal import lfilter
 
-SAMPLE_RATE = 22050
+SAMPLE_RATE = STFT.sample_rate
 
 
 def _resonator(x: np.ndarray, freq: float, bandwidth: float, sr: int) -> np.ndarray:

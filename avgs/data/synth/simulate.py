@@ -30,10 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
+from avgs.config import STFT
 from avgs.data.synth.materials import pra_material
 from avgs.data.synth.presets import SceneSpec
 
-SAMPLE_RATE = 22050
+SAMPLE_RATE = STFT.sample_rate
 RT60_BANDS_HZ = (125, 250, 500, 1000, 2000, 4000)
 
 

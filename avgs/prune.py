@@ -22,7 +22,6 @@ That changes the output; the benchmark reports by how much.
 
 from __future__ import annotations
 
-import copy
 import io
 import math
 
@@ -153,13 +152,6 @@ def subsample_checkpoint(ckpt: dict, n_keep: int, seed: int = 0) -> dict:
     return out
 
 
-def strip_gaussians(ckpt: dict) -> dict:
-    """The checkpoint without G (drawing only; inference does not need it)."""
-    out = dict(ckpt)
-    out.pop("gaussians", None)
-    return out
-
-
 def checkpoint_bytes(ckpt: dict) -> int:
     """Size in bytes of ``ckpt`` as ``torch.save`` writes it."""
     buf = io.BytesIO()
@@ -167,6 +159,14 @@ def checkpoint_bytes(ckpt: dict) -> int:
     return buf.tell()
 
 
-def deep_copy(ckpt: dict) -> dict:
-    """An independent copy (tensors cloned)."""
-    return copy.deepcopy(ckpt)
+def scene_listener_box(scene_dir, margin: float) -> tuple[np.ndarray, np.ndarray]:
+    """(World box [2, 3] around a scene's train and val listener positions widened by ``margin``,
+    those positions [P, 3])."""
+    from avgs.data.rwavs import RWAVSScene
+
+    scene = RWAVSScene(scene_dir)
+    clips = scene.train + scene.val
+    if not clips:
+        raise ValueError(f"{scene_dir}: no listener poses to take a region from")
+    world = scene.frame.to_world(np.stack([c.listener for c in clips]).astype(np.float64))  # [P, 3]
+    return np.stack([world.min(0) - margin, world.max(0) + margin]), world

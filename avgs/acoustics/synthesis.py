@@ -1,0 +1,121 @@
+"""From masks to sound: the one place where B's masks become ear spectrograms and waveforms.
+
+Training (:meth:`AVGSModel.forward <avgs.acoustics.model.AVGSModel.forward>`), rendering
+(:class:`avgs.inference.SceneRenderer`), streaming (:mod:`avgs.streaming`), evaluation and
+the benchmarks all go through these functions. Shapes: B poses, F = 257 frequency bins,
+N_t STFT frames; channel 0 of an ear axis is the left ear.
+
+The paper's mask model, per frequency, broadcast over frames::
+
+    g_l = m_m (1 + m_d),   g_r = m_m (1 - m_d)                        (ear_gains)
+    s_m = |S| m_m,   s_l = |S| g_l,   s_r = |S| g_r
+
+With the reverberant tail (:mod:`avgs.acoustics.reverb_tail`) each ear adds decayed power
+of earlier frames: ``s_ear = sqrt((|S| g_ear)^2 + r_ear^2 P)``, and ``s_m`` is the mean of
+the two ears. The waveform is the iSTFT of the ear magnitudes with the source's phase,
+refined by ``SynthesisConfig.phase_iterations`` of fast Griffin-Lim.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import torch
+
+from avgs import dsp
+from avgs.acoustics.reverb_tail import fill_phase, tail_power
+from avgs.config import STFT, STFTConfig, SynthesisConfig
+
+
+@dataclass(frozen=True)
+class Masks:
+    """What B predicts for a batch of poses, and the vicinity sets F read for them."""
+
+    mixture: torch.Tensor  # [B, F] mixture mask m_m (>= 0 with relu, (0, 1) with sigmoid)
+    difference: torch.Tensor  # [B, F] difference mask m_d in (-1, 1); > 0: left louder
+    reverb: torch.Tensor | None = None  # [B, 2, F] reverberant gains r >= 0; None without a tail
+    decay: torch.Tensor | None = None  # [F] the tail's power decay per frame (scene-wide); with reverb
+    listener_vicinity: torch.Tensor | None = None  # [B, k] int64 indices into the audio points
+    source_vicinity: torch.Tensor | None = None  # [k] int64
+
+    def __post_init__(self):
+        if (self.reverb is None) != (self.decay is None):
+            raise ValueError("Masks: give both the reverberant gains and the decay, or neither")
+
+    def with_vicinity(self, listener: torch.Tensor, source: torch.Tensor) -> "Masks":
+        return replace(self, listener_vicinity=listener, source_vicinity=source)
+
+
+def ear_gains(mixture: torch.Tensor, difference: torch.Tensor) -> torch.Tensor:
+    """The per-ear gains ``m_m (1 + m_d)`` (left) and ``m_m (1 - m_d)`` (right): masks [..., F] -> [..., 2, F]."""
+    return torch.stack([mixture * (1.0 + difference), mixture * (1.0 - difference)], dim=-2)
+
+
+def ear_magnitudes(mono_mag: torch.Tensor, masks: Masks, power: torch.Tensor | None = None):
+    """Predicted magnitudes ``(s_m, s_l, s_r)``, each [B, F, N_t], of the source magnitudes ``mono_mag`` [B, F, N_t].
+
+    ``power`` [B, F, N_t]: the tail's decayed source power (:func:`~avgs.acoustics.reverb_tail.tail_power`);
+    computed here when the masks carry a tail and it is not given (streams pass their recursion's).
+    """
+    gains = ear_gains(masks.mixture, masks.difference)  # [B, 2, F]
+    s_l = mono_mag * gains[:, 0, :, None]  # [B, F, N_t]
+    s_r = mono_mag * gains[:, 1, :, None]
+    if masks.reverb is None:
+        return mono_mag * masks.mixture[..., None], s_l, s_r
+    if power is None:
+        power = tail_power(mono_mag, masks.decay)  # [B, F, N_t]
+    s_l = _sqrt0(s_l.square() + masks.reverb[:, 0, :, None].square() * power)
+    s_r = _sqrt0(s_r.square() + masks.reverb[:, 1, :, None].square() * power)
+    return 0.5 * (s_l + s_r), s_l, s_r
+
+
+def _sqrt0(x: torch.Tensor) -> torch.Tensor:
+    """sqrt(x) for x >= 0, exactly 0 at 0 (silence stays silent), with a finite gradient there."""
+    tiny = torch.finfo(x.dtype).tiny
+    return torch.where(x > tiny, torch.sqrt(x.clamp_min(tiny)), torch.zeros_like(x))
+
+
+def source_phase(mono_stft: torch.Tensor, first_frame: int = 0, tail: bool = False) -> torch.Tensor:
+    """Unit phasors of the source's STFT [..., F, N_t] (complex), for bins where it is silent: 1, or with
+    a reverberant ``tail`` ringing on after the source stops, a fixed pseudo-random phase
+    (:func:`~avgs.acoustics.reverb_tail.fill_phase`; ``first_frame`` is the absolute index of frame 0)."""
+    mag = mono_stft.abs()
+    silent = torch.ones_like(mono_stft)
+    if tail and bool((mag == 0).any()):
+        fill = fill_phase(mag.shape[-2], first_frame, mag.shape[-1], mag.device)
+        silent = fill.to(mono_stft.dtype).expand_as(mono_stft)
+    return torch.where(mag > 0, mono_stft / mag.clamp_min(torch.finfo(mag.dtype).tiny), silent)
+
+
+def ear_spectrogram(mono_stft: torch.Tensor, masks: Masks, post_conv=None) -> torch.Tensor:
+    """The predicted complex spectrogram of both ears: ear magnitudes with the source's phase.
+
+    mono_stft: [B, F, N_t] complex -> [B, 2, F, N_t] complex. Its magnitudes are what B is
+    trained to match and what AV-NeRF's evaluation scores. ``post_conv``: the binauralizer's
+    :class:`~avgs.acoustics.post_conv.PostConv`, or None.
+    """
+    if post_conv is None and masks.reverb is None:
+        # |S| g e^{i phase(S)} = S g: the gains scale the source spectrum, keeping its phase.
+        return mono_stft[:, None] * ear_gains(masks.mixture, masks.difference)[..., None]  # [B, 2, F, N_t]
+    mag = mono_stft.abs()  # [B, F, N_t]
+    _, s_l, s_r = ear_magnitudes(mag, masks)
+    if post_conv is not None:
+        s_l, s_r = post_conv(mag, masks.mixture, masks.difference, s_l, s_r)
+    phase = source_phase(mono_stft, tail=masks.reverb is not None)  # [B, F, N_t]
+    return torch.stack([s_l, s_r], dim=1) * phase[:, None]  # [B, 2, F, N_t]
+
+
+def waveform(spec: torch.Tensor, length: int, stft: STFTConfig = STFT, synthesis: SynthesisConfig | None = None):
+    """Waveform ``[..., length]`` of an ear spectrogram ``spec [..., F, N_t]`` (:func:`ear_spectrogram`):
+    its magnitudes restored by ``synthesis``'s phase iterations from its phase (None: the defaults;
+    0 iterations is the plain iSTFT, the paper's synthesis and the stream's)."""
+    synthesis = synthesis or SynthesisConfig()
+    return dsp.griffin_lim(spec, spec.abs(), length, synthesis.phase_iterations, synthesis.phase_momentum, stft)
+
+
+def binaural_waveform(
+    mono_stft: torch.Tensor, masks: Masks, length: int, stft: STFTConfig = STFT, post_conv=None,
+    synthesis: SynthesisConfig | None = None,
+) -> torch.Tensor:
+    """:func:`waveform` of :func:`ear_spectrogram`: [B, 2, length] (channel 0 = left)."""
+    return waveform(ear_spectrogram(mono_stft, masks, post_conv), length, stft, synthesis)

@@ -1,0 +1,1 @@
+"""``avgs bench``: latency, speed against error, training throughput; writes benchmarks/REPORT.md."""
