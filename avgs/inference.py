@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from avgs import dsp
-from avgs.acoustics.direction import signed_direction
+from avgs.data.frame import signed_direction
 from avgs.acoustics.synthesis import Masks, ear_spectrogram, waveform
 from avgs.checkpoint import config_of, load_checkpoint, stft_of
 from avgs.config import SynthesisConfig

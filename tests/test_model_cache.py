@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from avgs.acoustics.direction import signed_direction
+from avgs.data.frame import signed_direction
 from avgs.acoustics.model import AVGSModel
 from avgs.acoustics.points import AudioPoints
 from avgs.config import AcousticConfig

@@ -15,9 +15,15 @@ import soundfile as sf
 import torch
 
 from avgs import dsp
-from avgs.data.frame import SceneFrame, c2w_from_yaw, direction_to_source, facing_from_c2w, yaw_from_c2w
+from avgs.data.frame import SceneFrame, c2w_from_yaw, facing_from_c2w, signed_direction, yaw_from_c2w
 from avgs.data.rwavs import RWAVSScene
 from rwavs_writer import SR, opengl_c2w, write_scene
+
+
+def direction_to_source(listener, yaw: float, source) -> float:
+    """:func:`avgs.data.frame.signed_direction` of one pose, in float64."""
+    as64 = lambda v: torch.as_tensor(np.asarray(v, dtype=np.float64))  # noqa: E731
+    return float(signed_direction(as64(listener)[None], as64([yaw]), as64(source))[0])
 
 
 def wrap(angle: float) -> float:

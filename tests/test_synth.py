@@ -15,10 +15,11 @@ import sys
 import numpy as np
 import pytest
 import soundfile as sf
+import torch
 from PIL import Image
 
 from avgs.cli import main
-from avgs.data.frame import direction_to_source, yaw_from_c2w
+from avgs.data.frame import signed_direction, yaw_from_c2w
 from avgs.data.rwavs import RWAVSScene, read_camera_path
 from avgs.data.synth.geometry import surface_points
 from avgs.data.synth.materials import MATERIALS
@@ -27,6 +28,13 @@ from avgs.data.synth.presets import PRESETS, make_spec
 from avgs.data.synth.simulate import SimSettings, binaural_rirs, load_settings, load_spec
 from avgs.data.synth.writer import SynthConfig, pose_windows, write_scene
 from conftest import FOREIGN_ENTRY
+
+
+def direction_to_source(listener, yaw: float, source) -> float:
+    """:func:`avgs.data.frame.signed_direction` of one pose, in float64."""
+    as64 = lambda v: torch.as_tensor(np.asarray(v, dtype=np.float64))  # noqa: E731
+    return float(signed_direction(as64(listener)[None], as64([yaw]), as64(source))[0])
+
 
 SR = 22050
 

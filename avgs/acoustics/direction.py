@@ -1,8 +1,7 @@
-"""The direction to the source, and the features B reads it through.
+"""The features through which B reads the direction to the source.
 
-``theta = atan2(cross(f, d), dot(f, d))`` in the xy plane, with ``f`` the listener's facing
-and ``d = source - listener``: positive when the source is on the listener's **left**
-(ARCHITECTURE.md). B reads theta as circular harmonics ``cos(n theta), sin(n theta)``,
+theta is :func:`avgs.data.frame.signed_direction`: positive when the source is on the
+listener's **left** (ARCHITECTURE.md). B reads theta as circular harmonics ``cos(n theta), sin(n theta)``,
 n = 1 .. K (default), or as the paper's positional encoding of ``theta / (1.01 pi)``.
 """
 
@@ -19,16 +18,6 @@ THETA_SCALE = 1.0 / (1.01 * math.pi)
 
 DIRECTION_ENCODINGS = ("fourier", "harmonic")
 "Direction features B can use: the paper's Fourier features of theta, or circular harmonics."
-
-
-def signed_direction(listener: torch.Tensor, yaw: torch.Tensor, source: torch.Tensor) -> torch.Tensor:
-    """theta [B] radians, positive when the source is on the listener's left.
-
-    listener: [B, 3] (or [B, 2]); yaw: [B] radians, counter-clockwise from +x; source: [B, 3] or [3].
-    """
-    d = source[..., :2] - listener[..., :2]  # [B, 2]
-    fx, fy = torch.cos(yaw), torch.sin(yaw)
-    return torch.atan2(fx * d[..., 1] - fy * d[..., 0], fx * d[..., 0] + fy * d[..., 1])
 
 
 def direction_dim(encoding: str, harmonics: int, pe_frequencies: int) -> int:

@@ -5,7 +5,7 @@ rotation), so directions and yaw are the same in both frames. RWAVS stores poses
 frames (``transforms_*.json`` and ``transforms_scale_*.json``); :meth:`SceneFrame.fit`
 recovers the map from the pairs by least squares.
 
-Also here: the listener's signed direction to the source (:func:`direction_to_source`),
+Also here: the listener's signed direction to the source (:func:`signed_direction`),
 the one place the "positive = source on the listener's left" convention is computed.
 """
 
@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 
 @dataclass(frozen=True)
@@ -121,13 +122,15 @@ def c2w_from_yaw(position, yaw: float) -> np.ndarray:
     return c2w
 
 
-def direction_to_source(listener, yaw: float, source) -> float:
-    """Signed angle in radians from the listener's facing to the source, in the xy plane.
+def signed_direction(listener: torch.Tensor, yaw: torch.Tensor, source: torch.Tensor) -> torch.Tensor:
+    """Signed angle theta [B] in radians from the listener's facing to the source, in the xy plane.
 
     ``theta = atan2(cross(f, d), dot(f, d))`` with ``f = (cos yaw, sin yaw)`` and
     ``d = source - listener``: in ``(-pi, pi]``, 0 straight ahead, **positive when the
-    source is on the listener's left**, negative on the right. ``yaw`` in radians.
+    source is on the listener's left**, negative on the right. listener: [B, 3] (or [B, 2]);
+    yaw: [B] radians, counter-clockwise from +x; source: [B, 3] or [3]. The one place this
+    convention is computed: the loader, training and rendering all call it.
     """
-    fx, fy = math.cos(yaw), math.sin(yaw)
-    d = np.asarray(source, dtype=np.float64)[:2] - np.asarray(listener, dtype=np.float64)[:2]
-    return math.atan2(fx * d[1] - fy * d[0], fx * d[0] + fy * d[1])
+    d = source[..., :2] - listener[..., :2]  # [B, 2]
+    fx, fy = torch.cos(yaw), torch.sin(yaw)
+    return torch.atan2(fx * d[..., 1] - fy * d[..., 0], fx * d[..., 0] + fy * d[..., 1])

@@ -33,7 +33,7 @@ import torch
 
 from avgs import dsp
 from avgs.config import STFT, STFTConfig
-from avgs.data.frame import SceneFrame, direction_to_source, yaw_from_c2w
+from avgs.data.frame import SceneFrame, signed_direction, yaw_from_c2w
 
 BINAURAL_FILE = "binaural_syn_re.wav"
 SOURCE_FILE = "source_syn_re.wav"
@@ -337,9 +337,11 @@ class ClipDataset(torch.utils.data.Dataset):
         self.source = torch.as_tensor(np.asarray(source), dtype=torch.float32)  # [3]
         self.listener = torch.from_numpy(np.stack([c.listener for c in clips])).float()  # [B, 3]
         self.yaw = torch.tensor([c.yaw for c in clips], dtype=torch.float32)  # [B]
-        self.theta = torch.tensor(
-            [direction_to_source(c.listener, c.yaw, source) for c in clips], dtype=torch.float32
-        )  # [B]
+        self.theta = signed_direction(
+            torch.from_numpy(np.stack([c.listener for c in clips]).astype(np.float64)),
+            torch.tensor([c.yaw for c in clips], dtype=torch.float64),
+            torch.as_tensor(np.asarray(source, dtype=np.float64)),
+        ).float()  # [B], computed in float64
         self.time = torch.tensor([c.time for c in clips], dtype=torch.float32)  # [B]
         self.mono = torch.from_numpy(np.stack([c.mono for c in clips]))  # [B, T]
         self.binaural = torch.from_numpy(np.stack([c.binaural for c in clips]))  # [B, 2, T]
