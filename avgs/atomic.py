@@ -1,16 +1,27 @@
-"""Atomic file writes: nothing half-written is ever left at the destination.
+"""Safe file writes: nothing half-written is left at the destination, nothing a user
+passed in is destroyed.
 
 Every file ``avgs`` and ``avgs-viewer`` write (checkpoints, logs, plots, WAVs, JSON,
 screenshots) goes through :func:`atomic_path`: the content is written to a temporary
 file in the destination's folder and moved onto the destination with ``os.replace``
 only when the writer finished. The file gets the permissions a plain ``open`` would
-give it (0666 less the umask), not ``mkstemp``'s private 0600.
+give it (0666 less the umask), not ``mkstemp``'s private 0600. The temporary file's name
+carries the writer's process id; a later save to the same destination removes the
+temporary files that writers no longer alive left behind (a save killed midway).
+
+Outputs named by the user are checked first, before any work, by :func:`check_output`:
+an output may not be one of the command's inputs (the same file after resolving links),
+an existing folder, a name ending in a separator, anything that is not a regular file
+(a device, FIFO or socket), or sit in a folder that does not exist. :func:`atomic_path`
+refuses to replace anything but a regular file.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -23,22 +34,122 @@ def _umask() -> int:
     return mask
 
 
+class OutputError(ValueError):
+    """An output path that must not be written (names the path and why)."""
+
+
+TEMP_MARK = ".avgs-tmp-"
+"Part of every temporary file's name: ``.{name}.avgs-tmp-{pid}-{random}{suffix}``."
+
+
+def check_output(path: str | Path, inputs=(), what: str = "output", exist_ok: bool = True) -> Path:
+    """Refuse, before any work, an output that must not be written; returns it resolved.
+
+    ``inputs``: the paths the command reads (files or folders). An output may not be one
+    of them (after resolving links), nor an existing file inside an input folder (a scene's
+    own files), nor an existing folder, nor a path ending in a separator, nor anything but a
+    regular file (a device, FIFO or socket), and its folder must exist. ``exist_ok=False``
+    also refuses an existing file.
+    """
+    text = os.fspath(path)
+    if not text or text.endswith((os.sep, "/")):
+        raise OutputError(f"{what} {text!r}: expected a file name, got a folder path")
+    p = Path(text)
+    try:
+        resolved = p.resolve(strict=False)
+    except (OSError, RuntimeError) as exc:  # a symlink loop
+        raise OutputError(f"{what} {p}: cannot be resolved ({exc})") from None
+    if resolved.exists() or p.is_symlink():
+        try:
+            mode = resolved.stat().st_mode
+        except OSError as exc:
+            raise OutputError(f"{what} {p}: cannot be checked ({exc.strerror or exc})") from None
+        if stat.S_ISDIR(mode):
+            raise OutputError(f"{what} {p}: is an existing folder; expected a file name")
+        if not stat.S_ISREG(mode):
+            raise OutputError(f"{what} {p}: is not a regular file (a device, FIFO or socket); refusing to replace it")
+        if not exist_ok:
+            raise OutputError(f"{what} {p}: exists already")
+    if not resolved.parent.is_dir():
+        raise OutputError(f"{what} {p}: folder {p.parent} does not exist")
+    for given in inputs:
+        if given is None:
+            continue
+        try:
+            src = Path(given).resolve(strict=False)
+        except (OSError, RuntimeError):
+            continue
+        if src == resolved:
+            raise OutputError(f"{what} {p} is also an input of this command; write somewhere else")
+        if src.is_dir() and resolved.exists() and src in resolved.parents:
+            raise OutputError(f"{what} {p} would replace a file inside the input folder {given}; write somewhere else")
+    return resolved
+
+
+def _remove_stale_temporaries(path: Path) -> None:
+    """Remove ``path``'s temporary files whose writers are no longer running."""
+    try:
+        candidates = list(path.parent.glob(f".{path.name}{TEMP_MARK}*"))
+    except OSError:
+        return
+    for tmp in candidates:
+        try:
+            pid = int(tmp.name[len(f".{path.name}{TEMP_MARK}") :].split("-", 1)[0])
+        except ValueError:
+            continue
+        if pid != os.getpid() and not _alive(pid):
+            tmp.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, owned by someone else
+        return True
+    return True
+
+
 @contextmanager
 def atomic_path(path: str | Path, make_parents: bool = True) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` (same suffix, so writers that look at it pick the
-    right format); it replaces ``path`` when the block ends without an exception, else it is removed."""
+    right format); it replaces ``path`` when the block ends without an exception, else it is removed.
+
+    A destination that exists and is not a regular file is never replaced; a symbolic link
+    is followed (its target is written). OS errors (read-only or full destination, no
+    permission) come out as ``OSError`` naming the destination.
+    """
     path = Path(path)
-    if make_parents:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    elif not path.parent.is_dir():
-        raise FileNotFoundError(f"cannot write {path}: folder {path.parent} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix or ".tmp", dir=path.parent)
-    os.close(fd)
+    if path.is_symlink():
+        path = path.resolve()
+    if path.exists() and not path.is_file():
+        raise OutputError(f"{path}: is not a regular file; refusing to replace it")
+    try:
+        if make_parents:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        elif not path.parent.is_dir():
+            raise FileNotFoundError(f"cannot write {path}: folder {path.parent} does not exist")
+        _remove_stale_temporaries(path)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMP_MARK}{os.getpid()}-", suffix=path.suffix or ".tmp",
+                                   dir=path.parent)
+        os.close(fd)
+    except OSError as exc:
+        if isinstance(exc, FileNotFoundError) and not exc.errno:
+            raise
+        raise OSError(exc.errno or errno.EIO, f"cannot write {path}: {exc.strerror or exc}") from None
     tmp_path = Path(tmp)
     try:
-        yield tmp_path
-        os.chmod(tmp_path, 0o666 & ~_umask())
-        os.replace(tmp_path, path)
+        try:
+            yield tmp_path
+            os.chmod(tmp_path, 0o666 & ~_umask())
+            if path.exists() and not path.is_file():  # appeared while we were writing
+                raise OutputError(f"{path}: is not a regular file; refusing to replace it")
+            os.replace(tmp_path, path)
+        except OSError as exc:
+            if isinstance(exc, OutputError) or not exc.errno:
+                raise
+            raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from None
     finally:
         tmp_path.unlink(missing_ok=True)
 
@@ -58,8 +169,11 @@ def write_wav(path: str | Path, audio, sample_rate: int, make_parents: bool = Tr
     import numpy as np
     import soundfile as sf
 
+    audio = np.asarray(audio, dtype=np.float32)  # [C, T]
     with atomic_path(path, make_parents=make_parents) as tmp:
-        sf.write(str(tmp), np.asarray(audio, dtype=np.float32).T, int(sample_rate), subtype="FLOAT", format="WAV")
+        with sf.SoundFile(str(tmp), "w", int(sample_rate), audio.shape[0], subtype="FLOAT", format="WAV") as f:
+            for i in range(0, audio.shape[1], 1 << 18):  # in pieces: no interleaved copy of a long signal
+                f.write(np.ascontiguousarray(audio[:, i : i + (1 << 18)].T))
     return Path(path)
 
 

@@ -10,6 +10,15 @@ until the source moves. The masks are time-invariant, so any input length costs 
 one multiply and the synthesis of :mod:`avgs.acoustics.synthesis`
 (:meth:`SceneRenderer.stream` does the same block by block).
 
+Bounded sound: the listener and the source are kept inside the scene's box
+(:attr:`SceneRenderer.bounds`, which holds its audio points, G, the training poses and the
+source), with a :class:`PositionClamped` warning naming the position asked for and the one
+used; the ear filter of a pose never gains more than :data:`HEADROOM_DB` over the input in
+any frequency bin (masks scaled down otherwise, with a :class:`HeadroomLimited` warning),
+and a render's peak never exceeds the input's peak by more than that either. Non-finite
+masks or output raise ValueError naming the checkpoint. Inputs are processed at unit peak
+and scaled back, so any finite input (1e-30 or 1e30) renders without underflow or overflow.
+
 Thread safety: :meth:`render` and :meth:`masks` serialise on an internal lock, so one
 worker thread may render while another thread reads the point arrays (read-only numpy).
 """
@@ -18,6 +27,7 @@ from __future__ import annotations
 
 import math
 import threading
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,14 +36,35 @@ import torch
 
 from avgs import dsp
 from avgs.data.frame import signed_direction
-from avgs.acoustics.synthesis import Masks, ear_spectrogram, waveform
+from avgs.acoustics.synthesis import Masks, ear_gains, ear_spectrogram, waveform
 from avgs.checkpoint import config_of, load_checkpoint, stft_of
 from avgs.config import SynthesisConfig
 from avgs.data.frame import SceneFrame
 from avgs.gaussians.sh import sh_to_rgb
 
-MAX_NORMALISED = 1e9
-"Positions farther than this from the scene's centre (normalised units; the scene spans ~[-1, 1]) are rejected: squared distances would overflow float32."
+HEADROOM_DB = 24.0
+"Most a pose's ear filter may gain over the input, in any frequency bin, and a render's peak over the input's peak (dB)."
+
+
+RENDER_BLOCK_FRAMES = 2048
+"Frames per block when a long input is rendered (about 12 s at AV-NeRF's hop): memory stays bounded."
+
+
+class _Piece(np.ndarray):
+    """A stretch of the input, and where it starts (``offset``, samples)."""
+
+    def __new__(cls, samples: np.ndarray, offset: int):
+        obj = np.asarray(samples).view(cls)
+        obj.offset = int(offset)
+        return obj
+
+
+class PositionClamped(UserWarning):
+    """A listener or source outside the scene's box was moved onto its edge."""
+
+
+class HeadroomLimited(UserWarning):
+    """A pose's ear filter gained more than HEADROOM_DB and was scaled down."""
 
 
 @dataclass(frozen=True)
@@ -49,6 +80,8 @@ class RenderResult:
     reverb: np.ndarray | None = None  # [2, F] float32 reverberant gains (left, right); None without a tail
     binaural: np.ndarray | None = None  # [2, T] float32, channel 0 = left ear; None from masks()
     magnitudes: np.ndarray | None = None  # [2, F, N_t] float32 predicted ear magnitudes; only when asked for
+    listener: np.ndarray | None = None  # [3] world, the listener position used (inside the scene's box)
+    source: np.ndarray | None = None  # [3] world, the source position used
 
 
 @dataclass(frozen=True)
@@ -57,6 +90,19 @@ class GaussianCloud:
 
     means: np.ndarray  # [M, 3] float32 world
     rgb: np.ndarray  # [M, 3] float32 in [0, 1], from the SH DC term
+
+
+def _peak(a: np.ndarray, chunk: int = 1 << 20) -> float:
+    """max |a| (NaN if any sample is NaN or Inf), in chunks: no temporary as large as ``a``."""
+    flat = a.reshape(-1) if a.flags.c_contiguous else a.ravel()
+    top = 0.0
+    for i in range(0, flat.size, chunk):
+        part = flat[i : i + chunk]
+        hi, lo = float(part.max()), float(part.min())
+        if not (math.isfinite(hi) and math.isfinite(lo)):
+            return math.nan
+        top = max(top, hi, -lo)
+    return top
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -194,25 +240,40 @@ class SceneRenderer:
 
     # -- rendering --------------------------------------------------------------------
 
+    def inside(self, position, what: str = "listener") -> np.ndarray:
+        """``position`` (world, 3 numbers) moved onto the scene's box if outside it, with a
+        :class:`PositionClamped` warning naming both positions."""
+        p = _position(position, what)
+        lo, hi = self._bounds.astype(np.float64)
+        q = np.clip(p, lo, hi)
+        if not np.array_equal(p, q):
+            warnings.warn(
+                f"{what} ({', '.join(f'{v:.6g}' for v in p)}) is outside the scene "
+                f"({', '.join(f'{v:.3g}' for v in lo)} .. {', '.join(f'{v:.3g}' for v in hi)}); "
+                f"using ({', '.join(f'{v:.6g}' for v in q)})",
+                PositionClamped, stacklevel=4,
+            )
+        return q
+
     def pose(self, listener, yaw: float, source=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """A public pose in the model's terms: (listener [1, 3], theta [1] radians, source [3]),
-        normalised, in the model's dtype. Raises ValueError for positions or yaws it cannot take."""
-        listener_n = self.frame.to_normalised(_position(listener, "listener"))
-        source_n = self.source_normalised if source is None else self.frame.to_normalised(_position(source, "source"))
+        normalised, in the model's dtype, both positions kept inside the scene (:meth:`inside`)."""
+        return self._pose(listener, yaw, source)[0]
+
+    def _pose(self, listener, yaw: float, source):
+        """(:meth:`pose`, (listener, source) world positions used [3] float64)."""
+        listener_w = self.inside(listener, "listener")
+        source_w = self.source if source is None else self.inside(source, "source")
+        listener_n = self.frame.to_normalised(listener_w)
+        source_n = self.source_normalised if source is None else self.frame.to_normalised(source_w)
         yaw = float(yaw)
         if not math.isfinite(yaw):
             raise ValueError(f"yaw must be a finite number of degrees, got {yaw!r}")
-        for what, value, p in (("listener", listener, listener_n), ("source", source, source_n)):
-            if not np.all(np.abs(p) <= MAX_NORMALISED):
-                raise ValueError(
-                    f"{what} {value!r} is {np.max(np.abs(p)):.3g} normalised units from the scene's "
-                    f"centre; expected at most {MAX_NORMALISED:g} (the scene spans about [-1, 1])"
-                )
         lis = torch.tensor(listener_n[None], dtype=torch.float64)  # [1, 3]
         src = torch.tensor(source_n, dtype=torch.float64)  # [3]
         theta = signed_direction(lis, torch.tensor([math.radians(yaw)], dtype=torch.float64), src)  # [1]
         as_model = dict(device=self.device, dtype=self.dtype)
-        return lis.to(**as_model), theta.to(**as_model), src.to(**as_model)
+        return (lis.to(**as_model), theta.to(**as_model), src.to(**as_model)), (listener_w, source_w)
 
     def source_context(self, source: torch.Tensor):
         """C_S and the source vicinity for ``source`` [3] (normalised), cached until the source moves."""
@@ -221,28 +282,53 @@ class SceneRenderer:
             self._source_cache = (key, self.model.source_context(source, self.cache))
         return self._source_cache[1]
 
-    def _masks(self, listener, yaw: float, source) -> tuple[Masks, float]:
-        lis, theta, src = self.pose(listener, yaw, source)
+    def _masks(self, listener, yaw: float, source) -> tuple[Masks, float, np.ndarray, np.ndarray]:
+        """(masks within the headroom, theta radians, listener and source used [3], world)."""
+        (lis, theta, src), (listener_w, source_w) = self._pose(listener, yaw, source)
         masks = self.model.masks(lis, theta, src, self.source_context(src), self.cache)
-        return masks, float(theta[0])
+        tensors = [t for t in (masks.mixture, masks.difference, masks.reverb, masks.decay) if t is not None]
+        if not all(bool(torch.isfinite(t).all()) for t in tensors):
+            raise ValueError(f"{self.path or 'this checkpoint'}: the model gives NaN or Inf masks at listener "
+                             f"{listener!r}, yaw {yaw!r}: its weights are not usable")
+        return self._within_headroom(masks), float(theta[0]), listener_w, source_w
+
+    def _within_headroom(self, m: Masks) -> Masks:
+        """The masks, scaled down when the pose's ear filter would gain more than HEADROOM_DB in a bin.
+
+        A bin's energy gain is at most ``g_ear^2 + r_ear^2 w / (1 - w)`` (direct gain, plus the
+        tail's geometric sum of decayed power, w its decay per frame); scaling the mixture and
+        reverberant gains by c scales it by c^2.
+        """
+        power = ear_gains(m.mixture, m.difference).double().square()  # [1, 2, F]
+        if m.reverb is not None:
+            w = m.decay.double().clamp(max=1.0 - 1e-9)
+            power = power + m.reverb.double().square() * (w / (1.0 - w))
+        peak_db = 10.0 * math.log10(max(float(power.max()), 1e-300))
+        if peak_db <= HEADROOM_DB:
+            return m
+        c = 10.0 ** ((HEADROOM_DB - peak_db) / 20.0)
+        warnings.warn(f"the ear filter at this pose gains {peak_db:.1f} dB in its loudest bin; scaled to "
+                      f"the {HEADROOM_DB:g} dB headroom", HeadroomLimited, stacklevel=4)
+        reverb = None if m.reverb is None else m.reverb * c
+        return Masks(m.mixture * c, m.difference, reverb, m.decay, m.listener_vicinity, m.source_vicinity)
 
     @staticmethod
-    def _result(m: Masks, theta: float, **extra) -> RenderResult:
+    def _result(m: Masks, theta: float, listener: np.ndarray, source: np.ndarray, **extra) -> RenderResult:
         def np32(t):
             return None if t is None else t[0].float().cpu().numpy()
 
         return RenderResult(
             mixture=np32(m.mixture), difference=np32(m.difference), reverb=np32(m.reverb),
             listener_vicinity=m.listener_vicinity[0].cpu().numpy(), source_vicinity=m.source_vicinity.cpu().numpy(),
-            theta=math.degrees(theta), **extra,
+            theta=math.degrees(theta), listener=listener, source=source, **extra,
         )
 
     def masks(self, listener, yaw: float, source=None) -> RenderResult:
         """Masks for a listener at ``listener`` (world) facing ``yaw`` degrees; ``source`` (world)
         defaults to the trained one. ``binaural`` is None."""
         with self._lock, torch.inference_mode():
-            m, theta = self._masks(listener, yaw, source)
-            return self._result(m, theta)
+            m, theta, lis, src = self._masks(listener, yaw, source)
+            return self._result(m, theta, lis, src)
 
     def render(
         self, listener, yaw: float, mono, source=None, magnitudes: bool = False, synthesis: SynthesisConfig | None = None
@@ -259,16 +345,62 @@ class SceneRenderer:
             x = x.reshape(-1)
         if x.ndim != 1 or x.size == 0:
             raise ValueError(f"mono must be a 1-D signal with at least one sample, got shape {x.shape}")
-        if not np.all(np.isfinite(x)):
+        peak = _peak(x)
+        if not math.isfinite(peak):
             raise ValueError("mono holds NaN or Inf samples")
+        scale = peak if peak > 0 else 1.0  # processed at unit peak: no float32 under- or overflow
+        synthesis = self.synthesis if synthesis is None else synthesis
         with self._lock, torch.inference_mode():
-            m, theta = self._masks(listener, yaw, source)
+            m, theta, lis, src = self._masks(listener, yaw, source)
             m32 = self.float32(m)
-            spec = dsp.stft(torch.from_numpy(x).to(self.device)[None], self.stft)  # [1, F, N_t]
-            ears = ear_spectrogram(spec, m32, self.post_conv)  # [1, 2, F, N_t]
-            y = waveform(ears, x.size, self.stft, self.synthesis if synthesis is None else synthesis)[0]  # [2, T]
-            mags = np.ascontiguousarray(ears[0].abs().float().cpu().numpy()) if magnitudes else None
-            return self._result(m, theta, binaural=np.ascontiguousarray(y.float().cpu().numpy()), magnitudes=mags)
+            y = np.empty((2, x.size), dtype=np.float32)  # [2, T]
+            mags, top = None, 0.0
+            for lo, hi, piece in self._pieces(x, m32, synthesis, whole=magnitudes):
+                spec = dsp.stft(torch.from_numpy(piece / np.float32(scale)).to(self.device)[None], self.stft)  # [1, F, N]
+                ears = ear_spectrogram(spec, m32, self.post_conv, piece.offset // self.stft.hop_length)  # [1, 2, F, N]
+                wave = waveform(ears, piece.size, self.stft, synthesis)[0]  # [2, piece]
+                y[:, lo:hi] = wave[:, lo - piece.offset : hi - piece.offset].float().cpu().numpy()
+                top = max(top, _peak(y[:, lo:hi]))  # NaN once any sample is not finite
+                if magnitudes:
+                    mags = np.ascontiguousarray((ears[0].abs().double().cpu().numpy() * scale).astype(np.float32))
+                del spec, ears, wave
+        if not math.isfinite(top):
+            raise ValueError(f"{self.path or 'this checkpoint'}: the render at listener {listener!r} is not finite")
+        limit = 10.0 ** (HEADROOM_DB / 20.0)  # the output's peak, relative to the input's (1 here)
+        if top > limit:
+            warnings.warn(f"the render peaks {20 * math.log10(top):.1f} dB over the input; limited to the "
+                          f"{HEADROOM_DB:g} dB headroom", HeadroomLimited, stacklevel=2)
+            y *= np.float32(limit / top)
+        y *= np.float32(scale)
+        return self._result(m, theta, lis, src, binaural=y, magnitudes=mags)
+
+    def _pieces(self, x: np.ndarray, masks: Masks, synthesis: SynthesisConfig, whole: bool = False):
+        """Yield (lo, hi, piece): output samples [lo, hi) are those of ``piece``, a stretch of ``x``
+        (``piece.offset``: where it starts) with enough margin for the result to equal one pass.
+
+        The filter of a pose is fixed, and output frame t depends only on input frames within
+        a reach: the STFT window (a frame either side), the tail (its decay to NEGLIGIBLE_POWER,
+        causally), the phase iterations (the window's reach per iteration) and the conv head.
+        So a long input is rendered in blocks of RENDER_BLOCK_FRAMES with that reach as margin:
+        memory stays bounded by the block, and the result equals one pass to float rounding.
+        """
+        from avgs.acoustics.post_conv import CONTEXT_FRAMES
+        from avgs.acoustics.reverb_tail import tail_length
+
+        hop = self.stft.hop_length
+        n = dsp.n_frames(x.size, self.stft)
+        window = -(-self.stft.n_fft // hop)  # frames one window overlaps on each side, plus one
+        tail = 0 if masks.decay is None else tail_length(masks.decay, n)
+        margin = tail + window * (synthesis.phase_iterations + 2) + (CONTEXT_FRAMES if self.post_conv is not None else 0)
+        block = RENDER_BLOCK_FRAMES
+        if whole or n <= block + 2 * margin:
+            yield 0, x.size, _Piece(x, 0)
+            return
+        for s in range(0, n, block):
+            e = min(n, s + block)
+            a, b = max(0, s - margin), min(n, e + margin)
+            start, stop = a * hop, (x.size if b == n else b * hop)  # centred frames a .. b-1 of the piece
+            yield s * hop, (x.size if e == n else e * hop), _Piece(x[start:stop], start)
 
     @property
     def post_conv(self):
@@ -299,7 +431,7 @@ class SceneRenderer:
                 "Use render() on the whole signal."
             )
         with self._lock, torch.inference_mode():
-            m, _ = self._masks(listener, yaw, source)
+            m, *_ = self._masks(listener, yaw, source)
             return BinauralStream(self.float32(m), self.stft)
 
     def __repr__(self) -> str:

@@ -65,10 +65,14 @@ def run_headless(args: argparse.Namespace, scene: Path) -> int:
         # No X server: go straight to EGL rather than have VTK try X first and warn.
         os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
     from avgs import SceneRenderer
+    from avgs.atomic import check_output
 
     from .audio import load_clip
     from .export import export_headless
 
+    for path, what in ((args.screenshot, "--screenshot"), (args.audio, "--audio")):
+        if path is not None:
+            check_output(path, inputs=[scene, args.clip], what=what)
     renderer = SceneRenderer.load(scene)
     clip = load_clip(args.clip, renderer.sample_rate) if args.clip else None
     listener = args.listener
@@ -109,7 +113,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.bench is not None:
             if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
                 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+            from avgs.atomic import check_output
+
             from .bench import run_viewer_bench
+
+            check_output(args.bench, inputs=[scene, args.clip], what="--bench")
 
             r = run_viewer_bench(scene, args.bench, size=tuple(args.size))
             lat = r["latency"]
@@ -119,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.screenshot is not None or args.audio is not None:
             return run_headless(args, scene)
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, OSError) as exc:  # bad input or an unwritable output: one line, no traceback
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     return run_window(args, scene)

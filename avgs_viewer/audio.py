@@ -11,7 +11,6 @@ device exists and reports why not otherwise (no sound card on CI).
 
 from __future__ import annotations
 
-import math
 import threading
 from pathlib import Path
 
@@ -22,27 +21,11 @@ SILENCE_DB = -120.0
 
 # ---------------------------------------------------------------------- clips
 def load_clip(path: str | Path, sample_rate: int, max_seconds: float = 30.0) -> np.ndarray:
-    """A WAV/FLAC/OGG file as mono float32 [T] at ``sample_rate``: down-mixed, resampled, trimmed."""
-    import soundfile as sf
-    from scipy.signal import resample_poly
+    """An audio file as mono float32 [T] at ``sample_rate``: down-mixed, resampled, trimmed
+    to ``max_seconds`` (:func:`avgs.audio_input.read_mono`)."""
+    from avgs.audio_input import read_mono
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"audio clip {path} does not exist")
-    try:
-        data, sr = sf.read(str(path), dtype="float32", always_2d=True)  # [T, C]
-    except Exception as exc:  # soundfile raises its own LibsndfileError / RuntimeError
-        raise ValueError(f"cannot read audio clip {path}: {exc}") from None
-    if data.shape[0] == 0:
-        raise ValueError(f"audio clip {path} is empty")
-    mono = data.mean(axis=1)  # [T]
-    if sr != sample_rate:
-        g = math.gcd(int(sr), int(sample_rate))
-        mono = resample_poly(mono, sample_rate // g, sr // g).astype(np.float32)
-    mono = mono[: int(max_seconds * sample_rate)]
-    if not np.all(np.isfinite(mono)):
-        raise ValueError(f"audio clip {path} has non-finite samples")
-    return np.ascontiguousarray(mono, dtype=np.float32)
+    return read_mono(path, sample_rate, max_seconds=max_seconds)
 
 
 def make_seamless_loop(mono: np.ndarray, fade: int) -> np.ndarray:

@@ -15,25 +15,27 @@ import numpy as np
 from avgs import atomic
 
 
-def write_wav(path: str | Path, binaural: np.ndarray, sample_rate: int) -> Path:
-    """Write binaural [2, T] audio as a 2-channel float WAV (left first)."""
+def write_wav(path: str | Path, binaural: np.ndarray, sample_rate: int, inputs=()) -> Path:
+    """Write binaural [2, T] audio as a 2-channel float WAV (left first); never over one of ``inputs``."""
     binaural = np.asarray(binaural, dtype=np.float32)
     if binaural.ndim != 2 or binaural.shape[0] != 2:
         raise ValueError(f"binaural audio must be [2, T], got shape {binaural.shape}")
     path = Path(path)
     if path.suffix.lower() != ".wav":
         raise ValueError(f"audio export must be a .wav file, got {path}")
+    atomic.check_output(path, inputs=inputs, what="audio export")
     return atomic.write_wav(path, binaural, sample_rate, make_parents=False)
 
 
-def write_screenshot(plotter: Any, path: str | Path, scale: int = 1, transparent: bool = False) -> Path:
-    """Save the plotter's view as a PNG, ``scale`` times its window size."""
+def write_screenshot(plotter: Any, path: str | Path, scale: int = 1, transparent: bool = False, inputs=()) -> Path:
+    """Save the plotter's view as a PNG, ``scale`` times its window size; never over one of ``inputs``."""
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"screenshot must be a .png file, got {path}")
     scale = int(scale)
     if not 1 <= scale <= 8:
         raise ValueError(f"screenshot scale must be an integer from 1 to 8, got {scale}")
+    atomic.check_output(path, inputs=inputs, what="screenshot")
     with atomic.atomic_path(path, make_parents=False) as tmp:
         plotter.screenshot(str(tmp), transparent_background=bool(transparent), scale=scale, return_img=False)
     return path

@@ -55,7 +55,8 @@ class ViewerEvents:
     """One :class:`Event` per state field, plus ``pose`` for any listener/yaw/source change."""
 
     NAMES = ("listener", "yaw", "source", "pose", "colour_mode", "slice_height",
-             "volume", "playing", "interacting")
+             "volume", "playing", "interacting", "clamped")
+    "``clamped`` carries a message naming a position that was moved back inside the scene."
 
     def __init__(self):
         for name in self.NAMES:
@@ -117,8 +118,15 @@ class ViewerState:
         return float(top + 0.5 * (self.bounds[1, 2] - top))
 
     # ------------------------------------------------------------------ helpers
-    def _clamp(self, xyz: np.ndarray) -> np.ndarray:
-        return np.clip(xyz, self.bounds[0], self.bounds[1])
+    def _clamp(self, xyz: np.ndarray, what: str | None = None) -> np.ndarray:
+        """``xyz`` inside the bounds (the renderer's scene box); a move by the user (``what``
+        given) that had to be clamped emits ``clamped`` with a message naming both positions."""
+        inside = np.clip(xyz, self.bounds[0], self.bounds[1])
+        if what is not None and not np.array_equal(inside, xyz):
+            self.events.clamped.emit(
+                f"{what} kept inside the scene: ({', '.join(f'{v:.2f}' for v in xyz)}) -> "
+                f"({', '.join(f'{v:.2f}' for v in inside)})")
+        return inside
 
     @staticmethod
     def _wrap(yaw: float) -> float:
@@ -149,7 +157,7 @@ class ViewerState:
         """Move the listener in xy, kept at its own height and inside the bounds."""
         xyz = _vec3(xyz, "listener").copy()
         xyz[2] = self._listener[2]
-        xyz = self._clamp(xyz)
+        xyz = self._clamp(xyz, "listener")
         if np.array_equal(xyz, self._listener):
             return
         self._listener = xyz
@@ -162,7 +170,7 @@ class ViewerState:
 
     def set_source(self, xyz: Any) -> None:
         """Move the source anywhere inside the bounds."""
-        xyz = self._clamp(_vec3(xyz, "source"))
+        xyz = self._clamp(_vec3(xyz, "source"), "source")
         if np.array_equal(xyz, self._source):
             return
         self._source = xyz

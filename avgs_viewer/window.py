@@ -329,6 +329,7 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.engine is None or self.engine.sample_rate != renderer.sample_rate:
             self._start_engine(renderer.sample_rate)
         self.engine.reset_gain()
+        state.events.clamped.connect(lambda message: self.statusBar().showMessage(message, 5000))
         state.events.volume.connect(lambda v: setattr(self.engine, "volume", v))
         state.events.playing.connect(lambda p: setattr(self.engine, "playing", p))
         self.engine.volume, self.engine.playing = state.volume, state.playing
@@ -450,7 +451,8 @@ class MainWindow(QtWidgets.QMainWindow):
     def export_screenshot(self, path: str | Path, scale: int = 1, transparent: bool = False) -> Path | None:
         """Write the 3D view as a PNG (``scale`` times the view's size)."""
         try:
-            out = export.write_screenshot(self.plotter, path, scale=scale, transparent=transparent)
+            out = export.write_screenshot(self.plotter, path, scale=scale, transparent=transparent,
+                                          inputs=(self.scene_path, self._clip_path))
         except (ValueError, OSError) as exc:
             self.show_error("Cannot export screenshot", str(exc))
             return None
@@ -468,7 +470,8 @@ class MainWindow(QtWidgets.QMainWindow):
             self.show_error("Cannot export audio", "No binaural render yet: wait for the scene to load.")
             return None
         try:
-            out = export.write_wav(path, self.live.last_result.binaural, self.renderer.sample_rate)
+            out = export.write_wav(path, self.live.last_result.binaural, self.renderer.sample_rate,
+                                   inputs=(self.scene_path, self._clip_path))
         except (ValueError, OSError) as exc:
             self.show_error("Cannot export audio", str(exc))
             return None

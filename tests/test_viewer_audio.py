@@ -171,7 +171,7 @@ def test_load_clip_downmixes_and_resamples(tmp_path):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         audio.load_clip(tmp_path / "none.wav", SR)
     (tmp_path / "bad.wav").write_bytes(b"not audio")
-    with pytest.raises(ValueError, match="cannot read audio clip"):
+    with pytest.raises(ValueError, match="cannot read audio file"):
         audio.load_clip(tmp_path / "bad.wav", SR)
 
 

@@ -53,14 +53,18 @@ def record(event):
 # ---------------------------------------------------------------------- state
 def test_listener_moves_at_its_height_and_stays_in_bounds():
     s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
-    listener_events, pose_events = record(s.events.listener), record(s.events.pose)
+    listener_events, pose_events, clamped = record(s.events.listener), record(s.events.pose), record(s.events.clamped)
+    s.set_listener((2.0, 2.0, 0.0))  # inside: nothing to say
+    assert clamped == []
     s.set_listener((9.0, -2.0, 2.9))
+    assert clamped == ["listener kept inside the scene: (9.00, -2.00, 1.50) -> (5.00, 0.00, 1.50)"]
     assert np.allclose(s.listener, [5.0, 0.0, 1.5])  # clamped in xy, height kept
     s.set_listener((9.0, -2.0, 0.0))  # the same clamped place: no event
-    assert len(listener_events) == 1 and len(pose_events) == 1
-    assert pose_events[0].listener == (5.0, 0.0, 1.5)
+    assert len(listener_events) == 2 and len(pose_events) == 2
+    assert pose_events[-1].listener == (5.0, 0.0, 1.5)
     s.set_source((2.0, 2.0, 7.0))
     assert np.allclose(s.source, [2.0, 2.0, 3.0])  # the source may change height, within bounds
+    assert clamped[-1].startswith("source kept inside the scene: (2.00, 2.00, 7.00)")
 
 
 def test_yaw_wraps_turns_left_and_has_a_facing_vector():

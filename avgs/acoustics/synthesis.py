@@ -87,12 +87,13 @@ def source_phase(mono_stft: torch.Tensor, first_frame: int = 0, tail: bool = Fal
     return torch.where(mag > 0, mono_stft / mag.clamp_min(torch.finfo(mag.dtype).tiny), silent)
 
 
-def ear_spectrogram(mono_stft: torch.Tensor, masks: Masks, post_conv=None) -> torch.Tensor:
+def ear_spectrogram(mono_stft: torch.Tensor, masks: Masks, post_conv=None, first_frame: int = 0) -> torch.Tensor:
     """The predicted complex spectrogram of both ears: ear magnitudes with the source's phase.
 
     mono_stft: [B, F, N_t] complex -> [B, 2, F, N_t] complex. Its magnitudes are what B is
     trained to match and what AV-NeRF's evaluation scores. ``post_conv``: the binauralizer's
-    :class:`~avgs.acoustics.post_conv.PostConv`, or None.
+    :class:`~avgs.acoustics.post_conv.PostConv`, or None. ``first_frame``: the absolute index of
+    frame 0 when ``mono_stft`` is a stretch of a longer signal (for the tail's fill phase).
     """
     if post_conv is None and masks.reverb is None:
         # |S| g e^{i phase(S)} = S g: the gains scale the source spectrum, keeping its phase.
@@ -101,7 +102,7 @@ def ear_spectrogram(mono_stft: torch.Tensor, masks: Masks, post_conv=None) -> to
     _, s_l, s_r = ear_magnitudes(mag, masks)
     if post_conv is not None:
         s_l, s_r = post_conv(mag, masks.mixture, masks.difference, s_l, s_r)
-    phase = source_phase(mono_stft, tail=masks.reverb is not None)  # [B, F, N_t]
+    phase = source_phase(mono_stft, first_frame, tail=masks.reverb is not None)  # [B, F, N_t]
     return torch.stack([s_l, s_r], dim=1) * phase[:, None]  # [B, 2, F, N_t]
 
 

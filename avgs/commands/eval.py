@@ -33,9 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from avgs import evaluate
-    from avgs.atomic import write_json
+    from avgs.atomic import check_output, write_json
     from avgs.commands.render import synthesis_of
 
+    if args.json:
+        ckpts = [m[len(evaluate.CKPT_PREFIX) :] for m in args.method or () if m.startswith(evaluate.CKPT_PREFIX)]
+        check_output(args.json, inputs=[args.data_root, *ckpts], what="--json")
     specs = list(dict.fromkeys(args.method or BASELINES))
     scene_dirs = evaluate.find_scenes(args.data_root, args.scene)
     synthesis = synthesis_of(args)

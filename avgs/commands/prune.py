@@ -28,9 +28,11 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from avgs.prune import prune_checkpoint, scene_listener_box
+    from avgs.atomic import check_output
     from avgs.checkpoint import load_checkpoint, save_checkpoint
+    from avgs.prune import prune_checkpoint, scene_listener_box
 
+    check_output(args.out, inputs=[args.checkpoint, args.scene], what="--out")
     ckpt = load_checkpoint(args.checkpoint)
     region, listeners = None, None
     if args.region is not None:

@@ -4,7 +4,6 @@ binauralise a mono (or down-mixed stereo) WAV for one listener pose, world coord
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from avgs.commands.flags import field_help
 from avgs.config import SynthesisConfig
@@ -22,32 +21,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=field_help(SynthesisConfig, "phase_iterations") + f" Default {SynthesisConfig.phase_iterations}.")
 
 
-def read_mono(path: str | Path, sample_rate: int):
-    """``path`` as float32 mono at ``sample_rate`` (down-mixed, resampled with resample_poly)."""
-    from math import gcd
-
-    import numpy as np
-    import soundfile as sf
-    from scipy.signal import resample_poly
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: input audio not found")
-    try:
-        x, sr = sf.read(path, dtype="float32", always_2d=True)  # [T, C]
-    except Exception as exc:
-        raise ValueError(f"{path}: not a readable audio file ({exc})") from None
-    if x.shape[0] == 0:
-        raise ValueError(f"{path}: holds no samples")
-    x = x.mean(axis=1)  # [T]
-    if sr != sample_rate:
-        g = gcd(int(sr), int(sample_rate))
-        x = resample_poly(x, sample_rate // g, int(sr) // g).astype(np.float32)
-    if not np.all(np.isfinite(x)):
-        raise ValueError(f"{path}: holds NaN or Inf samples")
-    return x
-
-
 def synthesis_of(args: argparse.Namespace) -> SynthesisConfig:
     """The :class:`SynthesisConfig` that ``--phase-iterations`` asks for (defaults otherwise)."""
     if args.phase_iterations is None:
@@ -58,9 +31,11 @@ def synthesis_of(args: argparse.Namespace) -> SynthesisConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from avgs.atomic import write_wav
+    from avgs.atomic import check_output, write_wav
+    from avgs.audio_input import read_mono
     from avgs.inference import SceneRenderer
 
+    check_output(args.output, inputs=[args.checkpoint, args.input], what="--output")
     renderer = SceneRenderer.load(args.checkpoint, device=args.device, synthesis=synthesis_of(args))
     mono = read_mono(args.input, renderer.sample_rate)
     out = renderer.render(args.listener, args.yaw, mono, source=args.source)

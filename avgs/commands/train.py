@@ -50,11 +50,24 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     return cfg
 
 
+def check_training_outputs(args: argparse.Namespace) -> None:
+    """Refuse, before any work, outputs that would replace an input or a non-file (avgs.atomic.check_output)."""
+    from avgs.atomic import check_output
+    from avgs.train.logging import log_paths
+    from avgs.train.stage1 import stage1_path
+
+    inputs = [args.scene, args.stage1]
+    check_output(args.out, inputs=inputs, what="--out")
+    for derived in (*log_paths(args.out), stage1_path(args.out)):
+        check_output(derived, inputs=inputs, what="--out's companion file")
+
+
 def run(args: argparse.Namespace) -> int:
     from avgs.train.logging import log_paths
     from avgs.train.pipeline import run_stage1_only, train_scene
 
     cfg = config_from_args(args)
+    check_training_outputs(args)
     if args.stage1_only:
         if args.stage1 or args.resume:
             raise ValueError("--stage1-only trains G; it takes neither --stage1 nor --resume")

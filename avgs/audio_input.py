@@ -1,0 +1,54 @@
+"""Reading a user's audio file as the mono signal a scene binauralises.
+
+One reader for ``avgs render`` and the explorer: any format libsndfile reads (WAV, FLAC,
+OGG, ...), down-mixed to mono, resampled to the scene's rate with ``resample_poly``.
+The header is checked before any sample is read: sample rates outside
+[MIN_SAMPLE_RATE, MAX_SAMPLE_RATE] (a header declaring 1 Hz would be resampled to millions
+of samples) and inputs longer than MAX_INPUT_SECONDS are refused, naming the file.
+"""
+
+from __future__ import annotations
+
+from math import gcd
+from pathlib import Path
+
+import numpy as np
+
+MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 4000, 384000
+"Input sample rates accepted (Hz)."
+MAX_INPUT_SECONDS = 4 * 3600
+"Longest input read (rendering runs in bounded memory; the signal itself must fit)."
+
+
+def read_mono(path: str | Path, sample_rate: int, max_seconds: float | None = None) -> np.ndarray:
+    """``path`` as float32 mono ``[T]`` at ``sample_rate``; ``max_seconds`` reads only the start."""
+    import soundfile as sf
+    from scipy.signal import resample_poly
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"audio file {path} does not exist")
+    try:
+        info = sf.info(str(path))
+    except Exception as exc:  # soundfile raises its own LibsndfileError / RuntimeError
+        raise ValueError(f"cannot read audio file {path}: {exc}") from None
+    if not MIN_SAMPLE_RATE <= info.samplerate <= MAX_SAMPLE_RATE:
+        raise ValueError(f"audio file {path}: sample rate {info.samplerate} Hz; expected {MIN_SAMPLE_RATE}-{MAX_SAMPLE_RATE} Hz")
+    frames = info.frames if max_seconds is None else min(info.frames, int(np.ceil(max_seconds * info.samplerate)))
+    if frames > MAX_INPUT_SECONDS * info.samplerate:
+        raise ValueError(f"audio file {path}: {info.frames / info.samplerate:.0f} s long; at most {MAX_INPUT_SECONDS} s")
+    try:
+        x, sr = sf.read(str(path), frames=frames, dtype="float32", always_2d=True)  # [T, C]
+    except Exception as exc:
+        raise ValueError(f"cannot read audio file {path}: {exc}") from None
+    if x.shape[0] == 0:
+        raise ValueError(f"audio file {path} holds no samples")
+    x = x[:, 0] if x.shape[1] == 1 else x.mean(axis=1)  # [T]
+    if sr != sample_rate:
+        g = gcd(int(sr), int(sample_rate))
+        x = resample_poly(x, sample_rate // g, int(sr) // g).astype(np.float32)
+    if max_seconds is not None:
+        x = x[: int(max_seconds * sample_rate)]
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"audio file {path} holds NaN or Inf samples")
+    return np.ascontiguousarray(x, dtype=np.float32)
