@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
 COMMANDS: dict[str, str] = {
     "synth": "Generate a synthetic scene with physical ground truth in the RWAVS layout.",
@@ -26,6 +27,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="avgs", description="AV-GS: novel-view acoustic synthesis with audio-visual Gaussian splatting."
     )
+    parser.add_argument("--threads", type=int, metavar="N",
+                        help="Torch CPU threads (default: OMP_NUM_THREADS if set, else the cores the machine's load "
+                             "leaves free, so that concurrent runs do not oversubscribe them).")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, help_text in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
@@ -38,22 +42,45 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser()
     # Find the command, then let its module add its own arguments.
-    command = next((a for a in argv if not a.startswith("-")), None)
+    command = next((a for a in argv if a in COMMANDS), None)
     if command in COMMANDS:
         sub_action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         module = importlib.import_module(f"avgs.commands.{command}")
         module.add_arguments(sub_action.choices[command])
     args = parser.parse_args(argv)
     module = importlib.import_module(args._module)
+
+    def one_line(message, category, filename, lineno, file=None, line=None):  # a warning is one line too
+        print(f"avgs {args.command}: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
     try:
-        return int(module.run(args) or 0)
+        from avgs.threads import set_threads
+
+        set_threads(args.threads)
+        with warnings.catch_warnings():
+            warnings.showwarning = one_line
+            return int(module.run(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
-    except (FileNotFoundError, ValueError) as exc:
-        # Bad input: one clear line naming the file or value, no traceback.
-        print(f"avgs {args.command}: error: {exc}", file=sys.stderr)
+    except (ValueError, OSError) as exc:
+        # Bad input (a malformed file or value: ValueError) or a file that cannot be read or
+        # written (missing, a folder, no permission, disk full: OSError): one clear line naming
+        # the file or value, no traceback. Anything else is a bug and keeps its traceback.
+        print(f"avgs {args.command}: error: {error_line(exc)}", file=sys.stderr)
         return 2
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line reporting ``exc``: an OS error as ``FILE: reason``, any message on one line."""
+    text = str(exc)
+    if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+        text = f"{exc.filename}: {exc.strerror}"
+        if exc.filename2 is not None:
+            text += f" ({exc.filename2})"
+    elif isinstance(exc, OSError) and exc.strerror and not exc.filename:
+        text = exc.strerror
+    return " ".join(text.split()) or type(exc).__name__
 
 
 if __name__ == "__main__":

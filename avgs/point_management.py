@@ -82,6 +82,10 @@ class AudioPointManager:
     """Accumulates vicinity gradients; densifies and prunes G_a on schedule."""
 
     def __init__(self, cfg: PointManagementConfig, total_iterations: int, generator: torch.Generator | None = None):
+        if cfg.enabled and (int(cfg.densify_every) < 1 or int(cfg.prune_every) < 1):
+            raise ValueError(
+                f"point management needs densify_every and prune_every >= 1, got {cfg.densify_every} and {cfg.prune_every}"
+            )
         self.cfg = cfg
         self.densify_until = int(cfg.densify_until_fraction * total_iterations)
         self.generator = generator or torch.Generator().manual_seed(0)
@@ -91,6 +95,31 @@ class AudioPointManager:
     def _reset(self, n: int, device) -> None:
         self.grad_sum = torch.zeros(n, device=device)
         self.count = torch.zeros(n, device=device)
+
+    # -- resume ------------------------------------------------------------------------
+
+    def state_dict(self) -> dict:
+        """The densification statistics gathered since the last densification (plain tensors or None):
+        ``grad_sum [N]``, ``count [N]``. With :meth:`load_state_dict` and the generator's state
+        (which the caller saves, :meth:`avgs.train.stage2.Stage2Trainer.state_dict`), a resumed run
+        densifies exactly as an uninterrupted one."""
+        def plain(t):
+            return None if t is None else t.detach().cpu().clone()
+
+        return {"grad_sum": plain(self.grad_sum), "count": plain(self.count)}
+
+    def load_state_dict(self, state: dict | None, n_points: int, device=None) -> None:
+        """Restore :meth:`state_dict` for a G_a of ``n_points`` points (ValueError if it does not fit)."""
+        state = state or {}
+        grad_sum, count = state.get("grad_sum"), state.get("count")
+        if grad_sum is None and count is None:
+            self.grad_sum = self.count = None
+            return
+        for name, t in (("grad_sum", grad_sum), ("count", count)):
+            if not isinstance(t, torch.Tensor) or tuple(t.shape) != (n_points,):
+                raise ValueError(f"point manager: {name} must be a tensor [{n_points}], got {t!r:.60}")
+        self.grad_sum = grad_sum.detach().to(device=device).clone()
+        self.count = count.detach().to(device=device).clone()
 
     def step_post_backward(self, points: AudioPoints, vicinity: torch.Tensor, vicinity_size: int = 1) -> None:
         """Accumulate ``vicinity_size * ||dL/dX||`` of the points in ``vicinity`` (any-shaped int64 indices).

@@ -15,6 +15,7 @@ AVGS=.venv/bin/avgs
 DEVICE="${DEVICE:-$(.venv/bin/python -c 'import torch; print("cuda" if torch.cuda.is_available() else "cpu")')}"
 SCENE=data/demo/demo_house
 WORK=runs/demo
+mkdir -p "$WORK"
 
 # 1. The scene: a two-room house with a door, 200 train + 50 val poses (about 6 min on 2 cores).
 [ -d "$SCENE" ] || $AVGS synth data/demo --preset house --scene-id demo_house --poses 250 --seed 7

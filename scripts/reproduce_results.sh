@@ -15,6 +15,7 @@ export OMP_NUM_THREADS=1
 PRESETS="office house apartment outdoor"
 COMMON="--max-gaussians 50000 --audio-points 20000 --eval-every 500 --no-progress"
 
+mkdir -p runs/stage1
 for p in $PRESETS; do   # 200 train + 50 val poses each (4-9 min per scene on 2 cores)
   [ -d data/presets/${p}_0 ] || $A synth data/presets --preset $p --scene-id ${p}_0 --poses 250 --seed 0
   [ -f runs/stage1/${p}_0.ckpt.stage1.pt ] || \

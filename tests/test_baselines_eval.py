@@ -145,6 +145,8 @@ def test_overall_is_the_mean_of_environment_means():
 def test_cli_prints_tables_and_writes_json(data_root, tmp_path, capsys):
     out = tmp_path / "results" / "scores.json"
     argv = ["eval", str(data_root), "--method", "mono-mono", "--method", "stereo-energy", "--json", str(out), "--no-progress"]
+    assert main(argv) == 2 and "folder" in capsys.readouterr().err  # refused before any scoring: no folder
+    out.parent.mkdir()
     assert main(argv) == 0
     printed = capsys.readouterr().out
     for label in ("scene office_1", "scene garden-1", "env   office", "env   outdoor", "overall", "mono-mono", "stereo-energy"):

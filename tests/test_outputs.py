@@ -147,3 +147,21 @@ def test_a_full_disk_is_one_clear_error_and_leaves_nothing(files, tmp_path, caps
     code, err = run_cli(render(ckpt, wav, tmp_path / "out.wav"), capsys)
     assert code == 2 and "cannot write" in err and "No space left" in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []  # the temporary file is gone too
+
+
+def test_warnings_are_one_line_and_threads_are_set(files, tmp_path, capsys, monkeypatch):
+    import torch
+
+    from avgs.threads import choose_threads, free_cores
+
+    d, ckpt, wav = files
+    argv = ["--threads", "1", *render(ckpt, wav, tmp_path / "o.wav")]
+    argv[argv.index("--listener") + 1] = "200"  # far outside the scene
+    code, err = run_cli(argv, capsys)
+    assert code == 0 and torch.get_num_threads() == 1
+    assert err.count("\n") == 1 and err.startswith("avgs render: warning: listener (200, 1, 1) is outside the scene")
+    assert run_cli(["--threads", "0", "info", str(ckpt)], capsys)[0] == 2
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    assert choose_threads(None) == 3 and choose_threads(2) == 2
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    assert 1 <= choose_threads(None) == free_cores() <= (os.cpu_count() or 1)

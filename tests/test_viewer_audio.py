@@ -268,3 +268,39 @@ def test_latency_benchmark_reports_median_and_p95(renderer):
     assert out["n"] == 4 and 0 < out["median_ms"] <= out["p95_ms"] <= out["max_ms"]
     refined = out["refined"]  # the renderer refines with phase iterations: a second buffer, later
     assert refined["n"] == 4 and refined["median_ms"] >= out["median_ms"] and out["draft_render_ms"] > 0
+
+
+def test_a_long_drag_keeps_memory_flat_and_closing_leaves_no_thread(renderer):
+    """An hour of dragging, compressed: hundreds of pose changes through the worker (drafts,
+    refinements, newest-wins drops) grow the process by no more than noise, and closing stops
+    the worker thread."""
+    import threading
+
+    def rss_mb() -> float:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith("VmRSS")) / 1024
+
+    state = ViewerState(renderer.bounds, renderer.source)
+    engine = LoopEngine(renderer.sample_rate)
+    live = LiveRender(renderer, state, engine, tone(330.0, 0.3, SR // 2))
+    rng = np.random.default_rng(0)
+    lo, hi = np.asarray(renderer.bounds)
+
+    def drag(moves: int) -> None:
+        for i in range(moves):
+            state.set_listener(rng.uniform(lo, hi))
+            state.set_yaw(float(rng.uniform(0, 360)))
+            if i % 10 == 9:
+                assert live.worker.wait_idle(30)
+                run(engine, 50)
+
+    try:
+        drag(100)  # warm-up: allocator pools, caches
+        before = rss_mb()
+        drag(600)
+        grown = rss_mb() - before
+    finally:
+        live.close()
+    assert grown < 25.0, f"RSS grew {grown:.1f} MB over 600 moves"
+    assert not live.worker.alive
+    assert not [t for t in threading.enumerate() if t.name.startswith("avgs")]

@@ -5,6 +5,13 @@ G_a is initialised from it (``init="gs"``) or straight from the scene's geometry
 (``init="sfm"``, scenes with a scene.json only). Stage 2 (:mod:`avgs.train.stage2`)
 trains G_a, F and B on the audio clips, saving the checkpoint atomically every
 ``checkpoint_every`` iterations; ``resume=True`` continues from the last one.
+
+Resuming is exact: the checkpoint's ``train_state`` holds the whole training state
+(:meth:`Stage2Trainer.state_dict <avgs.train.stage2.Stage2Trainer.state_dict>`: optimizer,
+schedule position, the point manager's statistics and generator, every random generator),
+so a run resumed from any saved checkpoint (a killed one, say) ends with the same points and
+weights, bit for bit, as the run that was never interrupted (on the CPU, with the same
+iterations and the same number of torch threads).
 """
 
 from __future__ import annotations
@@ -142,7 +149,7 @@ def train_scene(
     resumed = None
     if resume and out.is_file():
         resumed = load_checkpoint(out)
-        if "train_state" not in resumed:
+        if resumed.get("train_state") is None:
             raise ValueError(f"{out}: holds no training state to resume from")
         stored = config_of(resumed)
         stored.acoustic.iterations = cfg.acoustic.iterations
@@ -165,12 +172,19 @@ def train_scene(
     torch.manual_seed(cfg.seed)
     model = AVGSModel(points, cfg.acoustic, cfg.stft)
     if resumed is not None:
-        if model.field is not None:
-            model.field.load_state_dict(resumed["field"])
-        model.binauralizer.load_state_dict(resumed["binauralizer"])
+        try:
+            if model.field is not None:
+                model.field.load_state_dict(resumed["field"])
+            model.binauralizer.load_state_dict(resumed["binauralizer"])
+        except RuntimeError as exc:  # load_checkpoint compared the shapes already; this is the last guard
+            raise ValueError(f"{out}: its network weights do not fit its configuration ({str(exc).splitlines()[0]})") from None
     trainer = Stage2Trainer(model, scene.dataset("train", cfg.stft), cfg, cfg.device)
     if resumed is not None:
-        trainer.load_state_dict(resumed["train_state"])
+        try:
+            trainer.load_state_dict(resumed["train_state"])
+        except ValueError as exc:
+            raise ValueError(f"{out}: cannot resume from its training state: {exc}") from None
+        log.write({"stage": "resume", "iteration": trainer.iteration, "file": str(out)})
     val = scene.dataset("val", cfg.stft) if scene.val else None
     outline = outline_from_metadata(scene.metadata)
 

@@ -7,6 +7,7 @@ All training magnitudes are precomputed once (:class:`avgs.data.rwavs.ClipDatase
 
 from __future__ import annotations
 
+import random
 
 import numpy as np
 import torch
@@ -135,18 +136,114 @@ class Stage2Trainer:
     # -- resume ------------------------------------------------------------------------
 
     def state_dict(self) -> dict:
-        """Plain tensors and values (checkpoint-safe) to continue training exactly."""
-        return {
-            "iteration": self.iteration,
+        """Everything a resumed run needs to continue bit-identically (plain tensors and values,
+        ``torch.load(weights_only=True)`` safe):
+
+        ``iteration``; ``optimizer`` (Adam's moments and step counts, per parameter); ``schedule``
+        (``total`` iterations, ``base_lrs`` and the last ``lr_factor``: the learning rate is a function of
+        the iteration, recomputed each step); ``generator`` (the batch sampler's), ``manager_generator``
+        (the point manager's: spawn positions and alpha) and ``manager`` (its densification statistics
+        since the last densification, ``grad_sum`` and ``count``); ``torch_rng``, ``numpy_rng``,
+        ``python_rng`` (the global generators) and, on CUDA, ``cuda_rng``.
+        """
+        np_state = np.random.get_state()
+        py_version, py_words, py_gauss = random.getstate()
+        ac = self.cfg.acoustic
+        state = {
+            "iteration": int(self.iteration),
             "optimizer": self.optimizer.state_dict(),
+            "schedule": {
+                "total": int(self.total),
+                "base_lrs": [float(lr) for lr in self.base_lrs],
+                "lr_factor": float(lr_factor(max(self.iteration - 1, 0), self.total, ac.warmup_fraction, ac.final_lr_fraction)),
+            },
             "generator": self.generator.get_state(),
             "manager_generator": self.manager.generator.get_state(),
+            "manager": self.manager.state_dict(),
             "torch_rng": torch.get_rng_state(),
+            "numpy_rng": {
+                "keys": torch.from_numpy(np.asarray(np_state[1], dtype=np.int64).copy()),
+                "pos": int(np_state[2]),
+                "has_gauss": int(np_state[3]),
+                "cached_gaussian": float(np_state[4]),
+            },
+            "python_rng": {
+                "version": int(py_version),
+                "state": torch.tensor(py_words, dtype=torch.int64),
+                "gauss_next": None if py_gauss is None else float(py_gauss),
+            },
         }
+        if self.device.type == "cuda" and torch.cuda.is_initialized():
+            state["cuda_rng"] = [s.clone() for s in torch.cuda.get_rng_state_all()]
+        return state
 
     def load_state_dict(self, state: dict) -> None:
-        self.iteration = int(state["iteration"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.generator.set_state(state["generator"])
-        self.manager.generator.set_state(state["manager_generator"])
-        torch.set_rng_state(state["torch_rng"])
+        """Continue from :meth:`state_dict` (also from the shorter one of older checkpoints, which lacks the
+        point manager's statistics and the global numpy / Python generators: such a run resumes, but
+        densifies from fresh statistics). Raises ValueError when the state does not fit this model."""
+        iteration = state["iteration"]
+        if isinstance(iteration, bool) or not isinstance(iteration, int) or iteration < 0:
+            raise ValueError(f"training state: iteration must be an integer >= 0, got {iteration!r}")
+        self.optimizer.load_state_dict(self._fitting_optimizer_state(state["optimizer"]))
+        try:
+            self.generator.set_state(state["generator"])
+            self.manager.generator.set_state(state["manager_generator"])
+            torch.set_rng_state(state["torch_rng"])
+        except (RuntimeError, TypeError) as exc:
+            raise ValueError(f"training state: a random generator state is malformed ({exc})") from None
+        self.manager.load_state_dict(state.get("manager"), self.model.points.num_points, self.model.points.X.device)
+        if state.get("numpy_rng") is not None:
+            s = state["numpy_rng"]
+            np.random.set_state(("MT19937", s["keys"].numpy().astype(np.uint32), int(s["pos"]), int(s["has_gauss"]),
+                                 float(s["cached_gaussian"])))
+        if state.get("python_rng") is not None:
+            s = state["python_rng"]
+            try:
+                random.setstate((int(s["version"]), tuple(int(w) for w in s["state"].tolist()), s["gauss_next"]))
+            except (ValueError, TypeError) as exc:
+                raise ValueError(f"training state: python_rng is malformed ({exc})") from None
+        cuda = state.get("cuda_rng")
+        if cuda is not None and self.device.type == "cuda" and len(cuda) == torch.cuda.device_count():
+            torch.cuda.set_rng_state_all(cuda)
+        self.iteration = int(iteration)
+
+    def _fitting_optimizer_state(self, saved: dict) -> dict:
+        """``saved`` (an Adam state dict) with this optimizer's hyperparameters, checked against the
+        parameters it will be applied to: the same groups, the same number of parameters in each and
+        per-parameter state tensors of the parameters' shapes. The moments and step counts come from the
+        file; learning rates, betas and eps from the configuration (as in the run that saved it)."""
+        current = self.optimizer.state_dict()
+        groups = saved.get("param_groups") if isinstance(saved, dict) else None
+        per_param = saved.get("state") if isinstance(saved, dict) else None
+        if not isinstance(groups, list) or not isinstance(per_param, dict):
+            raise ValueError("training state: 'optimizer' is not an optimizer state dict")
+        if len(groups) != len(current["param_groups"]):
+            raise ValueError(
+                f"training state: the optimizer has {len(groups)} parameter groups, this model needs "
+                f"{len(current['param_groups'])}"
+            )
+        params = [p for g in self.optimizer.param_groups for p in g["params"]]
+        merged_groups, shapes = [], {}
+        for i, (mine, theirs) in enumerate(zip(current["param_groups"], groups)):
+            ids = theirs.get("params") if isinstance(theirs, dict) else None
+            if not isinstance(ids, list) or len(ids) != len(mine["params"]):
+                raise ValueError(
+                    f"training state: optimizer group {i} ({mine.get('name', i)}) holds "
+                    f"{len(ids) if isinstance(ids, list) else '?'} parameters, this model has {len(mine['params'])}"
+                )
+            merged_groups.append({**mine, "params": list(ids)})
+            for pid, own in zip(ids, mine["params"]):
+                shapes[pid] = (mine.get("name", i), tuple(params[own].shape))
+        for pid, entry in per_param.items():
+            if pid not in shapes or not isinstance(entry, dict):
+                raise ValueError(f"training state: optimizer state for an unknown parameter {pid!r}")
+            name, shape = shapes[pid]
+            for key, value in entry.items():
+                if key == "step":
+                    continue
+                if isinstance(value, torch.Tensor) and tuple(value.shape) != shape:
+                    raise ValueError(
+                        f"training state: optimizer {key} of group {name} has shape {tuple(value.shape)}, "
+                        f"the parameter has {shape}"
+                    )
+        return {"state": per_param, "param_groups": merged_groups}
