@@ -193,8 +193,12 @@ def test_closes_cleanly(qtbot, trained_ckpt):
     w.show()
     with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
         w.open_scene(trained_ckpt)
+    import threading
+
     worker = w.live.worker
     w.close()
     QtWidgets.QApplication.processEvents()
     assert not worker.alive and w.live is None
+    assert w.output is None or not w.output.available  # the audio stream is closed too
+    assert not [t for t in threading.enumerate() if t.name.startswith("avgs")]
     assert [t for t in QtWidgets.QApplication.topLevelWidgets() if t.isVisible()] == []

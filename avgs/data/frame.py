@@ -134,3 +134,110 @@ def signed_direction(listener: torch.Tensor, yaw: torch.Tensor, source: torch.Te
     d = source[..., :2] - listener[..., :2]  # [B, 2]
     fx, fy = torch.cos(yaw), torch.sin(yaw)
     return torch.atan2(fx * d[..., 1] - fy * d[..., 0], fx * d[..., 0] + fy * d[..., 1])
+
+
+# -- validation helpers (for the loaders: they name the file; these name the problem) --------
+
+RIGID_TOLERANCE = 1e-3
+"""How far a pose's rotation part may be from orthonormal: ``max |R^T R - I| < 1e-3``.
+
+RWAVS and our generator store poses as float64 JSON (orthonormal to ~1e-15); copies
+rounded to 6 decimals stay below 1e-5. A normalised pose is as rigid as the world one:
+the scale applies to its translation only."""
+
+
+def rigid_transform_problem(c2w, tolerance: float = RIGID_TOLERANCE) -> str | None:
+    """Why ``c2w`` is not a rigid camera-to-world ``[4, 4]``, or None when it is one.
+
+    Rigid: finite, bottom row ``[0, 0, 0, 1]``, rotation part ``R`` orthonormal
+    (``max |R^T R - I| < tolerance``) with ``det R > 0`` (no reflection)."""
+    m = np.asarray(c2w, dtype=np.float64)
+    if m.shape != (4, 4):
+        return f"not a 4x4 matrix (shape {list(m.shape)})"
+    if not np.all(np.isfinite(m)):
+        return "holds NaN or Inf"
+    if float(np.max(np.abs(m[3] - [0.0, 0.0, 0.0, 1.0]))) >= tolerance:
+        return f"bottom row is {[float(v) for v in m[3]]}, not [0, 0, 0, 1]"
+    R = m[:3, :3]
+    big = float(np.max(np.abs(R)))
+    if big > 1.0 + tolerance:  # no entry of a rotation exceeds 1 (and R^T R could overflow)
+        return f"rotation part not orthonormal (an entry of magnitude {big:.3g})"
+    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    if not err < tolerance:
+        return f"rotation part not orthonormal (max |R^T R - I| = {err:.3g}, tolerance {tolerance:g})"
+    if not float(np.linalg.det(R)) > 0:
+        return "rotation part is a reflection (det < 0)"
+    return None
+
+
+def frame_from_json(value) -> SceneFrame:
+    """A :class:`SceneFrame` from parsed JSON (``{"center": [3 numbers], "scale": number > 0}``),
+    strictly: booleans, strings, lists where a number belongs and huge or non-finite numbers
+    are refused with a ValueError naming the field (``from_dict`` is lenient: it also takes
+    arrays and tensors)."""
+    if not isinstance(value, dict):
+        raise ValueError(f"expected an object {{'center': [x, y, z], 'scale': s}}, got {describe_json(value)}")
+    for key in ("center", "scale"):
+        if key not in value:
+            raise ValueError(f"'{key}' missing; expected {{'center': [x, y, z], 'scale': s}}")
+    center = value["center"]
+    if not isinstance(center, list) or len(center) != 3:
+        raise ValueError(f"'center' must be a list of 3 numbers, got {describe_json(center)}")
+    xyz = [finite_number(v, f"'center'[{i}]") for i, v in enumerate(center)]
+    scale = finite_number(value["scale"], "'scale'")
+    if not scale > 0:
+        raise ValueError(f"'scale' must be > 0, got {scale!r}")
+    return SceneFrame(np.array(xyz), scale)
+
+
+def similarity_fit_residual(world, normalised) -> float:
+    """Largest per-point distance left after the best similarity (rotation, uniform scale,
+    translation; Umeyama's least squares) maps ``world [N, 3]`` onto ``normalised [N, 3]``.
+
+    :meth:`SceneFrame.fit` holds no rotation; this tells a rotated but otherwise exact copy
+    (small residual here, large there) from positions that no similarity relates."""
+    w = np.asarray(world, dtype=np.float64).reshape(-1, 3)
+    n = np.asarray(normalised, dtype=np.float64).reshape(-1, 3)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        dw, dn = w - w.mean(axis=0), n - n.mean(axis=0)
+        var_w = float(np.mean(np.sum(dw * dw, axis=-1)))
+        if len(w) < 2 or not var_w > 1e-18:
+            return float(np.max(np.linalg.norm(dn, axis=-1))) if len(n) else 0.0
+        U, S, Vt = np.linalg.svd(dn.T @ dw / len(w))
+        D = np.eye(3)
+        if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+            D[2, 2] = -1.0
+        R = U @ D @ Vt
+        s = float(np.trace(np.diag(S) @ D)) / var_w
+        out = float(np.max(np.linalg.norm(s * dw @ R.T - dn, axis=-1)))
+    return out if math.isfinite(out) else math.inf
+
+
+def describe_json(value) -> str:
+    """A short description of a parsed JSON value, for error messages (never a long repr)."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return f"a boolean ({str(value).lower()})"
+    if isinstance(value, str):
+        return f"a string ({value[:40]!r}{'...' if len(value) > 40 else ''})"
+    if isinstance(value, list):
+        return f"a list of {len(value)}"
+    if isinstance(value, dict):
+        return f"an object with {len(value)} key(s)"
+    if isinstance(value, int) and abs(value) > 10**15:
+        return f"an integer of about {int(value.bit_length() * 0.30103) + 1} digits"
+    return repr(value)
+
+
+def finite_number(value, what: str) -> float:
+    """``value`` as a float when it is a finite JSON number (not a boolean), else ValueError."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{what} must be a number, got {describe_json(value)}")
+    try:
+        x = float(value)
+    except OverflowError:
+        raise ValueError(f"{what} is too large ({describe_json(value)})") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{what} must be finite, got {x!r}")
+    return x

@@ -18,14 +18,35 @@ The sample for frame ``t`` (file ``00042.png`` -> t = 42 s) is the 1 s clip cent
 ``t``: samples ``round((t - 0.5) sr)`` to ``+ sr``, zero-padded past either end of the
 recording; a clip with less than 0.5 s of recorded audio is skipped, as is a
 camera-path entry without a pose.
+
+Everything read is validated, and an invalid scene is refused with a ValueError (or a
+FileNotFoundError for a missing file) whose message names the file and the field, never
+loaded silently nor left to crash deeper down: JSON is read as strict UTF-8, at most
+:data:`MAX_JSON_BYTES` and :data:`MAX_JSON_DEPTH` levels, with no NaN / Infinity and no key
+twice in one object; numbers are JSON numbers (not booleans or strings), finite, and
+coordinates within :data:`MAX_COORDINATE`; every pose is a rigid transform
+(:func:`avgs.data.frame.rigid_transform_problem`); a split lists each frame once, train and
+val share no frame, and ``file_path`` stays inside the scene folder (no ``..``, not
+absolute); the scaled and unscaled poses agree through one uniform scale + translation (or,
+per split, a rotated copy of that: loaded with a warning, as before), and with
+scene.json's ``to_normalised``, ``source`` and ``poses`` where it has them; WAVs have a
+sample rate in :data:`MIN_SAMPLE_RATE` .. :data:`MAX_SAMPLE_RATE`, at most
+:data:`MAX_AUDIO_SECONDS` of audio and finite samples of magnitude at most
+:data:`MAX_SAMPLE_MAGNITUDE`. A path that is a folder, a symbolic-link loop or not a
+regular file is refused by name.
 """
 
 from __future__ import annotations
 
 import json
+import math
+import os
+import posixpath
+import re
+import stat
 import warnings
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import numpy as np
 import soundfile as sf
@@ -33,7 +54,17 @@ import torch
 
 from avgs import dsp
 from avgs.config import STFT, STFTConfig
-from avgs.data.frame import SceneFrame, signed_direction, yaw_from_c2w
+from avgs.data.frame import (
+    RIGID_TOLERANCE,
+    SceneFrame,
+    describe_json,
+    finite_number,
+    frame_from_json,
+    rigid_transform_problem,
+    signed_direction,
+    similarity_fit_residual,
+    yaw_from_c2w,
+)
 
 BINAURAL_FILE = "binaural_syn_re.wav"
 SOURCE_FILE = "source_syn_re.wav"
@@ -42,6 +73,34 @@ METADATA_FILE = "scene.json"
 SPLITS = ("train", "val")
 FIT_TOLERANCE = 1e-3
 "RMS residual (normalised units) above which the fitted world <-> normalised map is reported as inexact."
+
+# -- limits of what a valid scene holds (see the module docstring) -------------------------
+MAX_JSON_BYTES = 16 * 2**20
+"""Largest JSON file read (16 MiB). The biggest legitimate one is a transforms file: ~400
+bytes a frame, and a frame a second for at most :data:`MAX_AUDIO_SECONDS` is ~1.5 MB."""
+MAX_JSON_DEPTH = 64
+"Deepest nesting of JSON arrays / objects accepted (our files nest at most 6 levels)."
+MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 8_000, 192_000
+"Sample rates (Hz) a WAV may declare at all, checked before the exact rate the model expects."
+MAX_AUDIO_SECONDS = 3600.0
+"""Longest recording read (1 h; RWAVS scenes are minutes long): 1 h of 2-channel float32 at
+22050 Hz is already 635 MB in memory."""
+MAX_SAMPLE_MAGNITUDE = 1e3
+"""Largest |sample| accepted: audio is read scaled to full scale = 1; beyond this it is
+garbage, and spectrogram magnitudes of it could overflow float32."""
+MAX_COORDINATE = 1e6
+"""Largest |coordinate| of a pose or source, read and normalised (1000 km in metres; the
+model computes in float32)."""
+MIN_SCALE, MAX_SCALE = 1e-6, 1e6
+"""Range of a world -> normalised ``scale`` accepted (a scene of half-extent 1 um .. 1000 km
+mapped into [-1, 1]); with :data:`MAX_COORDINATE` it keeps every mapped coordinate finite."""
+MAX_FRAME_NUMBER = 10**6
+"Largest frame number (= time in seconds) a file_path may carry."
+POSE_TOLERANCE = 1e-3
+"""How far (normalised units, times max(1, the largest |normalised coordinate|)) two files'
+positions of one frame may disagree: float rounding is ~1e-7 and 6-decimal copies ~1e-6."""
+YAW_TOLERANCE_DEG = 0.1
+"How far (degrees) scene.json's ``yaw_deg`` of a pose may be from the transforms file's."
 
 
 def transforms_path(scene_dir: Path, split: str, scaled: bool) -> Path:
@@ -75,17 +134,186 @@ class _PoseEntry:
     frame_number: int
     file_path: str
     c2w: np.ndarray  # [4, 4] in the frame of the file it was read from
+    field: str = ""  # where in its file, e.g. "camera_path[3].camera_to_world"
 
 
-def _read_json(path: Path, what: str):
+# -- validated reading: files, JSON, numbers -------------------------------------------------
+
+
+def require_file(path: Path, what: str) -> os.stat_result:
+    """``os.stat`` of a file that must exist and be a regular file (symbolic links followed)."""
     try:
-        text = path.read_text()
+        st = os.stat(path)
     except FileNotFoundError:
+        if os.path.islink(path):
+            raise FileNotFoundError(f"{path}: a symbolic link to nothing; expected {what}") from None
         raise FileNotFoundError(f"{path}: missing; expected {what}") from None
+    except NotADirectoryError:
+        raise FileNotFoundError(f"{path}: missing (a folder on its path is a file); expected {what}") from None
+    except OSError as exc:  # ELOOP (a symbolic-link loop), EACCES, ENAMETOOLONG, ...
+        raise ValueError(f"{path}: cannot be opened ({exc.strerror or exc}); expected {what}") from None
+    except ValueError as exc:  # an embedded NUL
+        raise ValueError(f"{str(path)[:200]!r}: not a usable path ({exc}); expected {what}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise ValueError(f"{path}: is a folder; expected {what}")
+    if not stat.S_ISREG(st.st_mode):
+        raise ValueError(f"{path}: not a regular file; expected {what}")
+    return st
+
+
+def file_present(path: Path, what: str) -> bool:
+    """True for a regular file at ``path``, False when nothing is there; an error for anything
+    else there (a folder, a symbolic-link loop, a link to nothing, a device)."""
     try:
-        return json.loads(text)
+        os.lstat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return False
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: cannot be opened ({exc}); expected {what}") from None
+    require_file(path, what)
+    return True
+
+
+def is_regular_file(path: Path) -> bool:
+    """``path.is_file()`` that is False, not an error, for any path the OS refuses
+    (a name too long, a symbolic-link loop, an embedded NUL)."""
+    try:
+        return stat.S_ISREG(os.stat(path).st_mode)
+    except (OSError, ValueError):
+        return False
+
+
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _object_without_duplicates(pairs):
+    out = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateKey(key)
+        out[key] = value
+    return out
+
+
+def _json_child(where: str, key) -> str:
+    if isinstance(key, int):
+        return f"{where}[{key}]"
+    text = key if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,60}", key) else repr(key[:60])
+    return f"{where}.{text}" if where else text
+
+
+def _json_problem(value) -> str | None:
+    """The first non-finite number or too deep nesting in parsed JSON, as ``where: what``."""
+    stack = [(value, "", 0)]
+    while stack:
+        v, where, depth = stack.pop()
+        if isinstance(v, float) and not math.isfinite(v):
+            spelled = "NaN" if math.isnan(v) else ("Infinity" if v > 0 else "-Infinity")
+            return f"{where or 'the value'} is {spelled}; numbers must be finite (no NaN or Infinity)"
+        if isinstance(v, (dict, list)):
+            if depth >= MAX_JSON_DEPTH:
+                return f"{where or 'the value'} nests deeper than {MAX_JSON_DEPTH} levels"
+            items = list(v.items()) if isinstance(v, dict) else list(enumerate(v))
+            stack.extend((child, _json_child(where, key), depth + 1) for key, child in reversed(items))
+    return None
+
+
+def read_json(path: Path, what: str):
+    """Parsed JSON of ``path``, validated: a regular file of at most :data:`MAX_JSON_BYTES`,
+    strict UTF-8, valid JSON nested at most :data:`MAX_JSON_DEPTH` levels, no NaN or
+    Infinity (nor numbers that overflow to it), no key twice in one object. Errors name the
+    file (and the place in it) and say what was ``what``-expected."""
+    path = Path(path)
+    st = require_file(path, what)
+    if st.st_size > MAX_JSON_BYTES:
+        raise ValueError(f"{path}: {st.st_size} bytes, more than the {MAX_JSON_BYTES} a scene's JSON may have; expected {what}")
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_JSON_BYTES + 1)
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror or exc}); expected {what}") from None
+    if len(data) > MAX_JSON_BYTES:
+        raise ValueError(f"{path}: more than the {MAX_JSON_BYTES} bytes a scene's JSON may have; expected {what}")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason}); expected {what}") from None
+    try:
+        value = json.loads(text, object_pairs_hook=_object_without_duplicates)
+    except RecursionError:
+        raise ValueError(f"{path}: JSON nested too deeply (more than {MAX_JSON_DEPTH} levels); expected {what}") from None
+    except _DuplicateKey as exc:
+        raise ValueError(f"{path}: key {str(exc.args[0])[:60]!r} appears twice in one object; expected {what}") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc}); expected {what}") from None
+    except ValueError as exc:  # e.g. an integer of more than sys.get_int_max_str_digits() digits
+        raise ValueError(f"{path}: not valid JSON ({str(exc)[:200]}); expected {what}") from None
+    problem = _json_problem(value)
+    if problem is not None:
+        raise ValueError(f"{path}: {problem}")
+    return value
+
+
+_read_json = read_json  # the name the readers used before
+
+
+def json_vector(value, n: int, where: str) -> np.ndarray:
+    """``[n]`` float64 from a JSON list of ``n`` finite numbers (not booleans or strings)."""
+    if not isinstance(value, list) or len(value) != n:
+        raise ValueError(f"{where} must be a list of {n} numbers, got {describe_json(value)}")
+    return np.array([finite_number(v, f"{where}[{i}]") for i, v in enumerate(value)], dtype=np.float64)
+
+
+def json_matrix4(value, where: str) -> np.ndarray:
+    """``[4, 4]`` float64 from 16 numbers row-major, or 4 rows of 4 numbers."""
+    if isinstance(value, list) and len(value) == 4 and all(isinstance(row, list) for row in value):
+        rows = [json_vector(row, 4, f"{where}[{i}]") for i, row in enumerate(value)]
+        return np.stack(rows)
+    if not isinstance(value, list) or len(value) != 16:
+        raise ValueError(f"{where} must be 16 numbers (row-major 4x4), got {describe_json(value)}")
+    return json_vector(value, 16, where).reshape(4, 4)
+
+
+def check_coordinates(points, where: str) -> None:
+    """ValueError unless every coordinate in ``points`` is finite and within :data:`MAX_COORDINATE`."""
+    p = np.asarray(points, dtype=np.float64)
+    if not np.all(np.isfinite(p)) or (p.size and float(np.max(np.abs(p))) > MAX_COORDINATE):
+        worst = float(np.max(np.abs(np.nan_to_num(p, nan=np.inf)))) if p.size else 0.0
+        raise ValueError(f"{where}: coordinate of magnitude {worst:.3g}, beyond the {MAX_COORDINATE:g} a scene may span")
+
+
+def scene_frame_from_json(value) -> SceneFrame:
+    """:func:`avgs.data.frame.frame_from_json` with the center within :data:`MAX_COORDINATE`
+    and the scale within :data:`MIN_SCALE` .. :data:`MAX_SCALE` (ValueError naming the field)."""
+    frame = frame_from_json(value)
+    if float(np.max(np.abs(frame.center))) > MAX_COORDINATE:
+        raise ValueError(f"'center' {[float(v) for v in frame.center]} is beyond the {MAX_COORDINATE:g} a scene may span")
+    if not MIN_SCALE <= frame.scale <= MAX_SCALE:
+        raise ValueError(f"'scale' {frame.scale:g} is outside {MIN_SCALE:g}..{MAX_SCALE:g}")
+    return frame
+
+
+_FRAME_STEM = re.compile(r"[0-9]{1,12}")
+_DRIVE = re.compile(r"[A-Za-z]:")
+
+
+def frame_number_of(file_path, where: str) -> int:
+    """The frame number of a ``file_path`` like ``frames/00042.png`` (42); ValueError naming
+    ``where`` when it is no string, no numbered frame, or leaves the scene folder."""
+    if not isinstance(file_path, str):
+        raise ValueError(f"{where} file_path must be a string like 'frames/00042.png', got {describe_json(file_path)}")
+    shown = file_path if len(file_path) <= 80 else file_path[:80] + "..."
+    name = file_path.replace("\\", "/")
+    stem = PurePosixPath(name).stem if "\x00" not in name else ""
+    if not _FRAME_STEM.fullmatch(stem) or int(stem) > MAX_FRAME_NUMBER:
+        raise ValueError(f"{where} file_path {shown!r} is not a numbered frame like '00042.png'")
+    norm = posixpath.normpath(name)
+    if name.startswith("/") or _DRIVE.match(name) or norm == ".." or norm.startswith("../"):
+        raise ValueError(
+            f"{where} file_path {shown!r} leaves the scene folder; paths must stay inside it (relative, no '..' out of it)"
+        )
+    return int(stem)
 
 
 def read_camera_path(path: Path) -> list[_PoseEntry]:
@@ -94,8 +322,12 @@ def read_camera_path(path: Path) -> list[_PoseEntry]:
     Reads nerfstudio's camera-path format (``{"camera_path": [{"camera_to_world": [16],
     "file_path"}]}``, RWAVS's) and, as some RWAVS copies store the unscaled poses that
     way, its transforms format (``{"frames": [{"transform_matrix": [[4] x 4], "file_path"}]}``).
+    Validated: each entry's ``file_path`` a numbered frame inside the scene folder, listed
+    once; each pose 16 finite numbers forming a rigid transform, coordinates within
+    :data:`MAX_COORDINATE`.
     """
-    meta = _read_json(path, 'a camera path {"camera_path": [{"camera_to_world", "file_path"}, ...]}')
+    path = Path(path)
+    meta = read_json(path, 'a camera path {"camera_path": [{"camera_to_world", "file_path"}, ...]}')
     if isinstance(meta, dict) and isinstance(meta.get("camera_path"), list):
         key, pose_key = "camera_path", "camera_to_world"
     elif isinstance(meta, dict) and isinstance(meta.get("frames"), list):
@@ -103,49 +335,70 @@ def read_camera_path(path: Path) -> list[_PoseEntry]:
     else:
         raise ValueError(f"{path}: expected a 'camera_path' (or nerfstudio 'frames') list of poses")
     out: list[_PoseEntry] = []
+    seen: dict[int, int] = {}
     for i, entry in enumerate(meta[key]):
         if not isinstance(entry, dict) or "file_path" not in entry:
             raise ValueError(f"{path}: {key}[{i}] has no 'file_path'")
-        file_path = str(entry["file_path"])
-        stem = Path(file_path.replace("\\", "/")).stem
-        try:
-            frame_number = int(stem)
-        except ValueError:
+        frame_number = frame_number_of(entry["file_path"], f"{path}: {key}[{i}]")
+        file_path = entry["file_path"]
+        if frame_number in seen:
             raise ValueError(
-                f"{path}: {key}[{i}] file_path {file_path!r} is not a numbered frame like '00042.png'"
-            ) from None
+                f"{path}: {key}[{i}].file_path {file_path[:80]!r} is frame {frame_number} again "
+                f"(already {key}[{seen[frame_number]}]); a split lists each frame once"
+            )
+        seen[frame_number] = i
         pose = entry.get(pose_key)
         if pose is None:
             continue  # a frame without a pose: skipped, as in RWAVS
-        try:
-            c2w = np.asarray(pose, dtype=np.float64).reshape(4, 4)
-        except (ValueError, TypeError):
-            raise ValueError(
-                f"{path}: {key}[{i}] ({file_path}) {pose_key} must be 16 numbers (row-major 4x4)"
-            ) from None
-        if not np.all(np.isfinite(c2w)):
-            raise ValueError(f"{path}: {key}[{i}] ({file_path}) {pose_key} holds NaN or Inf")
-        out.append(_PoseEntry(frame_number, file_path, c2w))
+        field = f"{key}[{i}].{pose_key}"
+        c2w = json_matrix4(pose, f"{path}: {field}")
+        problem = rigid_transform_problem(c2w, RIGID_TOLERANCE)
+        if problem is not None:
+            raise ValueError(f"{path}: {field} is not a rigid transform ({problem})")
+        check_coordinates(c2w[:3, 3], f"{path}: {field}")
+        out.append(_PoseEntry(frame_number, file_path, c2w, field))
     return out
 
 
 def read_wav(path: Path, channels: int, sample_rate: int = STFT.sample_rate) -> np.ndarray:
-    """A WAV file as ``[channels, T]`` float32, validated (sample rate, channel count, finite)."""
+    """A WAV file as ``[channels, T]`` float32, validated (a sample rate in
+    :data:`MIN_SAMPLE_RATE` .. :data:`MAX_SAMPLE_RATE` and equal to ``sample_rate``, the
+    channel count, at most :data:`MAX_AUDIO_SECONDS`, finite samples within
+    :data:`MAX_SAMPLE_MAGNITUDE`)."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: missing; expected a {channels}-channel {sample_rate} Hz WAV")
+    require_file(path, f"a {channels}-channel {sample_rate} Hz WAV")
     try:
         info = sf.info(str(path))
-    except RuntimeError as exc:
-        raise ValueError(f"{path}: not a readable audio file ({exc})") from None
+    except Exception as exc:  # libsndfile's errors, and whatever a malformed header provokes
+        raise ValueError(f"{path}: not a readable audio file ({type(exc).__name__}: {str(exc)[:200]})") from None
+    if not MIN_SAMPLE_RATE <= info.samplerate <= MAX_SAMPLE_RATE:
+        raise ValueError(
+            f"{path}: sample rate {info.samplerate} Hz is outside {MIN_SAMPLE_RATE}..{MAX_SAMPLE_RATE} Hz; "
+            f"expected {sample_rate} Hz"
+        )
     if info.samplerate != sample_rate:
         raise ValueError(f"{path}: sample rate {info.samplerate} Hz, expected {sample_rate} Hz")
     if info.channels != channels:
         raise ValueError(f"{path}: {info.channels} channel(s), expected {channels}")
-    data, _ = sf.read(str(path), dtype="float32", always_2d=True)  # [T, C]
+    if not 0 <= info.frames <= MAX_AUDIO_SECONDS * info.samplerate:
+        raise ValueError(
+            f"{path}: declares {info.frames} samples ({info.frames / info.samplerate:.0f} s), more than the "
+            f"{MAX_AUDIO_SECONDS:.0f} s a scene's recording may last"
+        )
+    try:
+        data, _ = sf.read(str(path), dtype="float32", always_2d=True)  # [T, C]
+    except Exception as exc:
+        raise ValueError(f"{path}: not a readable audio file ({type(exc).__name__}: {str(exc)[:200]})") from None
+    if data.ndim != 2 or data.shape[1] != channels or data.shape[0] > MAX_AUDIO_SECONDS * sample_rate:
+        raise ValueError(f"{path}: read {list(data.shape)} samples x channels, expected at most {MAX_AUDIO_SECONDS:.0f} s of {channels} channel(s)")
     audio = np.ascontiguousarray(data.T)  # [C, T]
     if not np.all(np.isfinite(audio)):
         raise ValueError(f"{path}: holds NaN or Inf samples")
+    if audio.size and float(np.max(np.abs(audio))) > MAX_SAMPLE_MAGNITUDE:
+        raise ValueError(
+            f"{path}: holds samples of magnitude {float(np.max(np.abs(audio))):.3g}; "
+            f"audio is expected at full scale 1 (at most {MAX_SAMPLE_MAGNITUDE:g})"
+        )
     return audio
 
 
@@ -167,11 +420,17 @@ def slice_padded(audio: np.ndarray, start: int, stop: int) -> np.ndarray:
 def read_scene_metadata(scene_dir: str | Path) -> dict | None:
     """``scene.json`` of a scene folder as a dict (our generator's), or None (real RWAVS scenes)."""
     path = Path(scene_dir) / METADATA_FILE
-    if not path.is_file():
+    what = "the scene description written by avgs synth"
+    if not file_present(path, what):
         return None
-    meta = _read_json(path, "the scene description written by avgs synth")
+    meta = read_json(path, what)
     if not isinstance(meta, dict):
         raise ValueError(f"{path}: expected a JSON object")
+    if "to_normalised" in meta:
+        try:
+            scene_frame_from_json(meta["to_normalised"])
+        except ValueError as exc:
+            raise ValueError(f"{path}: bad 'to_normalised' ({exc})") from None
     return meta
 
 
@@ -189,7 +448,10 @@ class RWAVSScene:
     """
 
     def __init__(self, scene_dir: str | Path, stft: STFTConfig = STFT):
-        self.root = Path(scene_dir).resolve()
+        try:
+            self.root = Path(scene_dir).resolve()
+        except (OSError, RuntimeError, ValueError) as exc:  # a symbolic-link loop, an embedded NUL
+            raise ValueError(f"{str(scene_dir)[:200]}: cannot resolve the scene folder ({exc})") from None
         if not self.root.is_dir():
             raise FileNotFoundError(f"{self.root}: scene folder missing")
         self.name = self.root.name
@@ -197,12 +459,15 @@ class RWAVSScene:
         self._stft = stft
         self.metadata: dict | None = self._read_metadata()
         poses = self._read_poses()  # {(split, scaled): [entries]}
+        self._check_splits_disjoint(poses)
         self.frame = self._choose_frame(poses)
         self.source = self._read_source()
+        entries = {split: self._split_entries(poses, split) for split in SPLITS}
+        self._check_metadata_agrees(entries)
         binaural = read_wav(self.root / BINAURAL_FILE, 2, self.sample_rate)  # [2, L]
         mono = read_wav(self.root / SOURCE_FILE, 1, self.sample_rate)[0]  # [L]
-        self.train = self._clips(self._split_entries(poses, "train"), mono, binaural)
-        self.val = self._clips(self._split_entries(poses, "val"), mono, binaural)
+        self.train = self._clips(entries["train"], mono, binaural)
+        self.val = self._clips(entries["val"], mono, binaural)
 
     def __repr__(self) -> str:
         return f"RWAVSScene({self.name!r}: {len(self.train)} train / {len(self.val)} val clips)"
@@ -227,7 +492,7 @@ class RWAVSScene:
         for split in SPLITS:
             for scaled in (True, False):
                 path = transforms_path(self.root, split, scaled)
-                if path.is_file():
+                if file_present(path, f"the {split} camera poses"):
                     poses[(split, scaled)] = read_camera_path(path)
             if (split, True) not in poses and (split, False) not in poses:
                 raise FileNotFoundError(
@@ -236,26 +501,93 @@ class RWAVSScene:
                 )
         return poses
 
-    def _choose_frame(self, poses) -> SceneFrame:
-        if self.metadata is not None and "to_normalised" in self.metadata:
-            try:
-                return SceneFrame.from_dict(self.metadata["to_normalised"])
-            except ValueError as exc:
-                raise ValueError(f"{self.root / METADATA_FILE}: bad 'to_normalised' ({exc})") from None
-        world, normalised = [], []
+    def _check_splits_disjoint(self, poses) -> None:
+        """A frame (a time) belongs to train or to val, never to both."""
+        where: dict[str, dict[int, Path]] = {split: {} for split in SPLITS}
+        for (split, scaled), entries in poses.items():
+            for e in entries:
+                where[split].setdefault(e.frame_number, transforms_path(self.root, split, scaled))
+        both = sorted(set(where["train"]) & set(where["val"]))
+        if both:
+            k = both[0]
+            raise ValueError(
+                f"{where['val'][k]}: frame {k} is also a train frame ({where['train'][k].name})"
+                + (f", as are {len(both) - 1} more" if len(both) > 1 else "")
+                + "; the train and val splits must be disjoint"
+            )
+
+    def _pose_pairs(self, poses) -> list[tuple[_PoseEntry, _PoseEntry, Path, Path]]:
+        """(scaled entry, unscaled entry, scaled file, unscaled file) of every frame posed in both kinds of file."""
+        pairs = []
         for split in SPLITS:
             if (split, True) in poses and (split, False) in poses:
-                scaled = {e.frame_number: e.c2w[:3, 3] for e in poses[(split, True)]}
-                for e in poses[(split, False)]:
-                    if e.frame_number in scaled:
-                        world.append(e.c2w[:3, 3])
-                        normalised.append(scaled[e.frame_number])
-        if not world:
+                unscaled = {e.frame_number: e for e in poses[(split, False)]}
+                for e in poses[(split, True)]:
+                    if e.frame_number in unscaled:
+                        pairs.append((e, unscaled[e.frame_number], transforms_path(self.root, split, True), transforms_path(self.root, split, False)))
+        return pairs
+
+    @staticmethod
+    def _tolerance(normalised) -> float:
+        n = np.asarray(normalised, dtype=np.float64)
+        return POSE_TOLERANCE * max(1.0, float(np.max(np.abs(n))) if n.size else 1.0)
+
+    def _check_pairs(self, pairs, frame: SceneFrame, how: str) -> None:
+        """Every scaled pose equals its unscaled pose mapped by ``frame`` (position and rotation)."""
+        if not pairs:
+            return
+        tol = self._tolerance([s.c2w[:3, 3] for s, _, _, _ in pairs])
+        for s, u, s_path, u_path in pairs:
+            expected = frame.pose_to_normalised(u.c2w)
+            off = float(np.linalg.norm(expected[:3, 3] - s.c2w[:3, 3]))
+            turn = float(np.max(np.abs(expected[:3, :3] - s.c2w[:3, :3])))
+            if not (off <= tol and turn <= RIGID_TOLERANCE):
+                raise ValueError(
+                    f"{s_path}: {s.field} (frame {s.frame_number}) disagrees with {u_path.name} {u.field} "
+                    f"through {how}: position off by {off:.3g} normalised units (tolerance {tol:.3g}), "
+                    f"rotation by {turn:.3g} (tolerance {RIGID_TOLERANCE:g})"
+                )
+
+    def _choose_frame(self, poses) -> SceneFrame:
+        pairs = self._pose_pairs(poses)
+        if self.metadata is not None and "to_normalised" in self.metadata:
+            try:
+                frame = scene_frame_from_json(self.metadata["to_normalised"])
+            except ValueError as exc:
+                raise ValueError(f"{self.root / METADATA_FILE}: bad 'to_normalised' ({exc})") from None
+            self._check_pairs(pairs, frame, f"{METADATA_FILE}'s to_normalised")
+            return frame
+        if not pairs:
             return SceneFrame.identity()
+        world = np.array([u.c2w[:3, 3] for _, u, _, _ in pairs])
+        normalised = np.array([s.c2w[:3, 3] for s, _, _, _ in pairs])
         try:
-            frame, rms = SceneFrame.fit(np.array(world), np.array(normalised))
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                frame, rms = SceneFrame.fit(world, normalised)
+            if not MIN_SCALE <= frame.scale <= MAX_SCALE:
+                raise ValueError(f"fitted scale {frame.scale:.3g} is outside {MIN_SCALE:g}..{MAX_SCALE:g}")
+            if float(np.max(np.abs(frame.center))) > MAX_COORDINATE:
+                raise ValueError(f"fitted center {[float(v) for v in frame.center]} is beyond {MAX_COORDINATE:g}")
         except ValueError as exc:
             raise ValueError(f"{self.root}: cannot relate transforms_*.json to transforms_scale_*.json: {exc}") from None
+        residual = np.linalg.norm(frame.to_normalised(world) - normalised, axis=-1)
+        tol = self._tolerance(normalised)
+        if float(np.max(residual)) <= tol:
+            self._check_pairs(pairs, frame, "the fitted uniform scale + translation")
+        else:
+            # Not a uniformly scaled and shifted copy. A rotated copy (per split: a normalisation
+            # that also turned the scene) loads with a warning, as it always did; anything else is
+            # an inconsistent pair of files.
+            for split in SPLITS:
+                idx = [i for i, (_, _, s_path, _) in enumerate(pairs) if s_path == transforms_path(self.root, split, True)]
+                if idx and similarity_fit_residual(world[idx], normalised[idx]) > self._tolerance(normalised[idx]):
+                    worst = max(idx, key=lambda i: residual[i])
+                    s, u, s_path, u_path = pairs[worst]
+                    raise ValueError(
+                        f"{s_path}: {s.field} (frame {s.frame_number}) disagrees with {u_path.name} {u.field}: "
+                        f"the scaled poses are no uniformly scaled and shifted (or rotated) copy of the unscaled "
+                        f"ones (this pose is {residual[worst]:.3g} normalised units off the best fit, tolerance {tol:.3g})"
+                    )
         if rms > FIT_TOLERANCE:
             warnings.warn(
                 f"{self.root}: the scaled poses are not a uniformly scaled and shifted copy of the "
@@ -266,27 +598,84 @@ class RWAVSScene:
 
     def _read_source(self) -> np.ndarray:
         path = self.root.parent / POSITION_FILE
-        table = _read_json(path, '{"<scene>": {"source_position": [x, y, z]}}')
-        entry = table.get(self.name) if isinstance(table, dict) else None
+        table = read_json(path, '{"<scene>": {"source_position": [x, y, z]}}')
+        if not isinstance(table, dict):
+            raise ValueError(f'{path}: expected a JSON object {{"<scene>": {{"source_position": [x, y, z]}}}}, got {describe_json(table)}')
+        entry = table.get(self.name)
         if entry is None:
             raise ValueError(f"{path}: no entry for scene {self.name!r}")
-        try:
-            source = np.asarray(entry["source_position"], dtype=np.float64).reshape(3)
-        except (KeyError, TypeError, ValueError):
-            raise ValueError(f"{path}: {self.name!r} needs 'source_position' as 3 numbers") from None
-        if not np.all(np.isfinite(source)):
-            raise ValueError(f"{path}: source_position of {self.name!r} holds NaN or Inf")
+        if not isinstance(entry, dict) or "source_position" not in entry:
+            raise ValueError(f"{path}: {self.name!r} needs 'source_position' as 3 numbers, got {describe_json(entry)}")
+        source = json_vector(entry["source_position"], 3, f"{path}: {self.name}.source_position")
+        check_coordinates(source, f"{path}: {self.name}.source_position")
         return source
+
+    def _check_metadata_agrees(self, entries) -> None:
+        """scene.json's ``source`` and ``poses`` (where it has them) against position.json and the transforms."""
+        meta = self.metadata
+        if meta is None:
+            return
+        path = self.root / METADATA_FILE
+        has_frame = "to_normalised" in meta
+        tol = self._tolerance(np.concatenate([self.source[None]] + [[c[:3, 3] for _, c in v] for v in entries.values() if v]))
+        position_file = self.root.parent / POSITION_FILE
+        if "source" in meta:
+            src = meta["source"]
+            if not isinstance(src, dict):
+                raise ValueError(f"{path}: source must be an object {{'position', 'normalised'}}, got {describe_json(src)}")
+            checks = []
+            if "normalised" in src:
+                checks.append(("source.normalised", json_vector(src["normalised"], 3, f"{path}: source.normalised")))
+            if "position" in src and has_frame:
+                world = json_vector(src["position"], 3, f"{path}: source.position")
+                check_coordinates(world, f"{path}: source.position")
+                checks.append(("source.position (through to_normalised)", self.frame.to_normalised(world)))
+            for name, value in checks:
+                off = float(np.linalg.norm(value - self.source))
+                if not off <= tol:
+                    raise ValueError(
+                        f"{path}: {name} is {off:.3g} normalised units from {position_file.name}'s source_position "
+                        f"of {self.name!r} (tolerance {tol:.3g})"
+                    )
+        if "poses" in meta and has_frame:
+            listed = meta["poses"]
+            if not isinstance(listed, list):
+                raise ValueError(f"{path}: poses must be a list of {{'frame', 'position', 'yaw_deg'}}, got {describe_json(listed)}")
+            loaded = {e.frame_number: (e, c2w, split) for split, v in entries.items() for e, c2w in v}
+            for i, p in enumerate(listed):
+                where = f"{path}: poses[{i}]"
+                if not isinstance(p, dict) or not {"frame", "position", "yaw_deg"} <= p.keys():
+                    raise ValueError(f"{where} must be an object {{'frame', 'position', 'yaw_deg'}}, got {describe_json(p)}")
+                k = p["frame"]
+                if isinstance(k, bool) or not isinstance(k, int):
+                    raise ValueError(f"{where}.frame must be an integer frame number, got {describe_json(k)}")
+                position = json_vector(p["position"], 3, f"{where}.position")
+                check_coordinates(position, f"{where}.position")
+                yaw_deg = finite_number(p["yaw_deg"], f"{where}.yaw_deg")
+                if k not in loaded:
+                    continue  # a pose the transforms files leave out (a subset scene)
+                e, c2w, split = loaded[k]
+                off = float(np.linalg.norm(self.frame.to_normalised(position) - c2w[:3, 3]))
+                turn = abs((yaw_deg - math.degrees(yaw_from_c2w(c2w)) + 180.0) % 360.0 - 180.0)
+                if not (off <= tol and turn <= YAW_TOLERANCE_DEG):
+                    raise ValueError(
+                        f"{where} (frame {k}) disagrees with the {split} transforms' {e.field}: position off by "
+                        f"{off:.3g} normalised units (tolerance {tol:.3g}), yaw by {turn:.3g} degrees "
+                        f"(tolerance {YAW_TOLERANCE_DEG:g})"
+                    )
 
     def _split_entries(self, poses, split: str) -> list[tuple[_PoseEntry, np.ndarray]]:
         """(entry, normalised c2w) pairs of one split, from the scaled file when present."""
         if (split, True) in poses:
             return [(e, e.c2w) for e in poses[(split, True)]]
-        return [(e, self.frame.pose_to_normalised(e.c2w)) for e in poses[(split, False)]]
+        out = [(e, self.frame.pose_to_normalised(e.c2w)) for e in poses[(split, False)]]
+        for e, c2w in out:
+            check_coordinates(c2w[:3, 3], f"{transforms_path(self.root, split, False)}: {e.field} mapped to the normalised frame")
+        return out
 
     def _frame_path(self, file_path: str) -> Path:
         candidate = self.root / file_path
-        if candidate.is_file():
+        if is_regular_file(candidate):
             return candidate
         return self.root / "frames" / Path(file_path.replace("\\", "/")).name
 

@@ -9,11 +9,16 @@ pinhole intrinsics, from a scene folder in the RWAVS layout (DESIGN.md §2).
 - Intrinsics, first found: ``transforms.json``'s ``fl_x, fl_y, cx, cy, w, h`` (scaled to
   the image's real size); the entry's ``fov`` (vertical, degrees; square pixels, centred
   principal point); else :data:`DEFAULT_FOV_DEG` with a warning.
+
+Validated as :mod:`avgs.data.rwavs` validates (JSON, numbers, rigid poses, frames listed
+once and inside the scene folder); images are refused by name when they are no regular
+file, undecodable (any PIL error) or larger than :data:`MAX_IMAGE_SIDE` /
+:data:`MAX_IMAGE_PIXELS` (checked from the header, before decoding), and the camera
+matrices must come out finite in float32.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from dataclasses import dataclass, field, replace
@@ -23,12 +28,30 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from avgs.data.frame import SceneFrame
-from avgs.data.rwavs import METADATA_FILE, SPLITS, read_camera_path, transforms_path
+from avgs.data.frame import SceneFrame, finite_number
+from avgs.data.rwavs import (
+    METADATA_FILE,
+    SPLITS,
+    check_coordinates,
+    file_present,
+    frame_number_of,
+    is_regular_file,
+    read_camera_path,
+    read_json,
+    require_file,
+    scene_frame_from_json,
+    transforms_path,
+)
 
 INTRINSICS_FILE = "transforms.json"
 DEFAULT_FOV_DEG = 60.0
 "Vertical field of view (degrees) assumed for a scene that states no intrinsics."
+MAX_IMAGE_SIDE = 16384
+"Widest / tallest key frame accepted, in pixels (16K)."
+MAX_IMAGE_PIXELS = 64 * 2**20
+"""Most pixels a key frame may have (64 Mpx: an 8K frame is 33 Mpx), checked from the
+header before decoding; below PIL's own decompression-bomb limit (89 Mpx), which is
+enforced too."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -119,44 +142,51 @@ def _scale_K(K: torch.Tensor, width: int, height: int, factor: int) -> torch.Ten
     return out
 
 
-def _read_json(path: Path, what: str):
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: missing; expected {what}") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc}); expected {what}") from None
+_read_json = read_json  # the name this module used before
 
 
 def _read_image(path: Path) -> np.ndarray:
     """``[H, W, 3]`` float32 in [0, 1]."""
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
 
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: missing; expected the key frame named by the transforms file")
-    try:
-        with Image.open(path) as im:
-            rgb = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
-    except (UnidentifiedImageError, OSError) as exc:
-        raise ValueError(f"{path}: not a readable image ({exc})") from None
+    require_file(path, "the key frame named by the transforms file")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", Image.DecompressionBombWarning)
+        try:
+            im = Image.open(path)
+        except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+            raise ValueError(f"{path}: image too large to decode safely ({exc})") from None
+        except Exception as exc:  # PIL's errors are many and undocumented: all mean "not an image we can read"
+            raise ValueError(f"{path}: not a readable image ({type(exc).__name__}: {str(exc)[:200]})") from None
+        with im:
+            W, H = im.size
+            if not (0 < W <= MAX_IMAGE_SIDE and 0 < H <= MAX_IMAGE_SIDE and W * H <= MAX_IMAGE_PIXELS):
+                raise ValueError(
+                    f"{path}: image declares {W}x{H} pixels; a key frame may be at most "
+                    f"{MAX_IMAGE_SIDE} pixels a side and {MAX_IMAGE_PIXELS} pixels in all"
+                )
+            try:
+                rgb = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
+            except Exception as exc:
+                raise ValueError(f"{path}: not a readable image ({type(exc).__name__}: {str(exc)[:200]})") from None
+    if rgb.ndim != 3 or rgb.shape[:2] != (H, W) or not np.all(np.isfinite(rgb)):
+        raise ValueError(f"{path}: not a readable image (decoded to {list(rgb.shape)} values, expected {H}x{W}x3 finite)")
     return rgb
 
 
 def _file_intrinsics(root: Path):
     """(fl_x, fl_y, cx, cy, w, h) from ``transforms.json``, or None when it is absent or has none."""
     path = root / INTRINSICS_FILE
-    if not path.is_file():
+    what = "nerfstudio transforms with fl_x, fl_y, cx, cy, w, h"
+    if not file_present(path, what):
         return None
-    meta = _read_json(path, "nerfstudio transforms with fl_x, fl_y, cx, cy, w, h")
+    meta = read_json(path, what)
     keys = ("fl_x", "fl_y", "cx", "cy", "w", "h")
     if not isinstance(meta, dict) or not all(k in meta for k in keys):
         if isinstance(meta, dict) and any(k in meta for k in keys):
             raise ValueError(f"{path}: has some but not all of {', '.join(keys)}")
         return None
-    try:
-        vals = tuple(float(meta[k]) for k in keys)
-    except (TypeError, ValueError):
-        raise ValueError(f"{path}: {', '.join(keys)} must be numbers") from None
+    vals = tuple(finite_number(meta[k], f"{path}: {k}") for k in keys)
     if not all(math.isfinite(v) for v in vals) or min(vals[0], vals[1], vals[4], vals[5]) <= 0:
         raise ValueError(f"{path}: fl_x, fl_y, w, h must be finite and > 0, got {vals}")
     return vals
@@ -164,37 +194,40 @@ def _file_intrinsics(root: Path):
 
 def _entry_fovs(path: Path) -> dict[int, float]:
     """Frame number -> vertical FOV (degrees) for camera-path entries that carry ``fov``."""
-    meta = _read_json(path, "a camera path")
+    meta = read_json(path, "a camera path")
     out = {}
     for i, entry in enumerate(meta.get("camera_path", []) if isinstance(meta, dict) else []):
         if isinstance(entry, dict) and "fov" in entry and "file_path" in entry:
-            try:
-                fov = float(entry["fov"])
-            except (TypeError, ValueError):
-                raise ValueError(f"{path}: camera_path[{i}] fov must be a number of degrees, got {entry['fov']!r}") from None
+            fov = finite_number(entry["fov"], f"{path}: camera_path[{i}].fov (degrees)")
             if not 0 < fov < 180:
                 raise ValueError(f"{path}: camera_path[{i}] fov must be in (0, 180) degrees, got {fov}")
-            out[int(Path(str(entry["file_path"]).replace("\\", "/")).stem)] = fov
+            out[frame_number_of(entry["file_path"], f"{path}: camera_path[{i}]")] = fov
     return out
 
 
 def _poses(root: Path, split: str):
     """(entries, their normalised c2w [V, 4, 4], the file read)."""
     scaled = transforms_path(root, split, True)
-    if scaled.is_file():
+    if file_present(scaled, f"the {split} camera poses"):
         entries = read_camera_path(scaled)
         return entries, [e.c2w for e in entries], scaled
     plain = transforms_path(root, split, False)
-    if not plain.is_file():
+    if not file_present(plain, f"the {split} camera poses"):
         raise FileNotFoundError(f"{scaled}: missing; expected it or {plain.name} with the {split} camera poses")
     frame = SceneFrame.identity()
     meta_path = root / METADATA_FILE
-    if meta_path.is_file():
-        meta = _read_json(meta_path, "the scene description written by avgs synth")
+    if file_present(meta_path, "the scene description written by avgs synth"):
+        meta = read_json(meta_path, "the scene description written by avgs synth")
         if isinstance(meta, dict) and "to_normalised" in meta:
-            frame = SceneFrame.from_dict(meta["to_normalised"])
+            try:
+                frame = scene_frame_from_json(meta["to_normalised"])
+            except ValueError as exc:
+                raise ValueError(f"{meta_path}: bad 'to_normalised' ({exc})") from None
     entries = read_camera_path(plain)
-    return entries, [frame.pose_to_normalised(e.c2w) for e in entries], plain
+    poses = [frame.pose_to_normalised(e.c2w) for e in entries]
+    for e, c2w in zip(entries, poses):
+        check_coordinates(c2w[:3, 3], f"{plain}: {e.field} mapped to the normalised frame")
+    return entries, poses, plain
 
 
 def load_views(scene_root: str | Path, split: str, downscale: int = 1) -> Views:
@@ -213,13 +246,13 @@ def load_views(scene_root: str | Path, split: str, downscale: int = 1) -> Views:
     entries, poses, source = _poses(root, split)
     if not entries:
         raise ValueError(f"{source}: no posed frames in the {split} split")
-    fovs = _entry_fovs(source) if source.is_file() else {}
+    fovs = _entry_fovs(source)
     file_k = _file_intrinsics(root)
     images, Ks, paths, size = [], [], [], None
     warned = False
     for entry in entries:
         path = root / entry.file_path
-        if not path.is_file():
+        if not is_regular_file(path):
             path = root / "frames" / Path(entry.file_path.replace("\\", "/")).name
         img = _read_image(path)
         H, W = img.shape[:2]
@@ -254,6 +287,9 @@ def load_views(scene_root: str | Path, split: str, downscale: int = 1) -> Views:
     K = torch.tensor(Ks, dtype=torch.float32)
     if downscale > 1:
         K = _scale_K(K, size[1], size[0], downscale)
+    if not bool(torch.isfinite(K).all()) or bool((K[:, 0, 0] <= 0).any()) or bool((K[:, 1, 1] <= 0).any()):
+        named = root / INTRINSICS_FILE if file_k is not None else source
+        raise ValueError(f"{named}: the intrinsics give a camera matrix that is not finite (or a focal length <= 0) in float32")
     return Views(
         images=torch.stack(images),
         c2w=torch.from_numpy(np.stack(poses)).float(),
