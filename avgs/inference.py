@@ -251,7 +251,7 @@ class SceneRenderer:
                 f"{what} ({', '.join(f'{v:.6g}' for v in p)}) is outside the scene "
                 f"({', '.join(f'{v:.3g}' for v in lo)} .. {', '.join(f'{v:.3g}' for v in hi)}); "
                 f"using ({', '.join(f'{v:.6g}' for v in q)})",
-                PositionClamped, stacklevel=4,
+                PositionClamped, stacklevel=5,  # the caller of render(), masks() or stream()
             )
         return q
 
@@ -308,7 +308,7 @@ class SceneRenderer:
             return m
         c = 10.0 ** ((HEADROOM_DB - peak_db) / 20.0)
         warnings.warn(f"the ear filter at this pose gains {peak_db:.1f} dB in its loudest bin; scaled to "
-                      f"the {HEADROOM_DB:g} dB headroom", HeadroomLimited, stacklevel=4)
+                      f"the {HEADROOM_DB:g} dB headroom", HeadroomLimited, stacklevel=4)  # the caller of render() etc.
         reverb = None if m.reverb is None else m.reverb * c
         return Masks(m.mixture * c, m.difference, reverb, m.decay, m.listener_vicinity, m.source_vicinity)
 

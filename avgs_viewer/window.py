@@ -226,6 +226,14 @@ class MainWindow(QtWidgets.QMainWindow):
         self.progress.setRange(0, 0)  # busy indicator while loading
         self.progress.setMaximumWidth(160)
         self.progress.hide()
+        # Positions kept inside the scene are reported here, not as a temporary status message,
+        # which Qt clears as soon as the pointer passes over any widget with a status tip.
+        self.position_notice = QtWidgets.QLabel()
+        self._notice_timer = QtCore.QTimer(self)
+        self._notice_timer.setSingleShot(True)
+        self._notice_timer.setInterval(5000)
+        self._notice_timer.timeout.connect(self.position_notice.clear)
+        self.statusBar().addPermanentWidget(self.position_notice)
         self.audio_status = QtWidgets.QLabel()
         self.statusBar().addPermanentWidget(self.audio_status)
         self.statusBar().addPermanentWidget(self.progress)
@@ -329,7 +337,7 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.engine is None or self.engine.sample_rate != renderer.sample_rate:
             self._start_engine(renderer.sample_rate)
         self.engine.reset_gain()
-        state.events.clamped.connect(lambda message: self.statusBar().showMessage(message, 5000))
+        state.events.clamped.connect(self._show_position_notice)
         state.events.volume.connect(lambda v: setattr(self.engine, "volume", v))
         state.events.playing.connect(lambda p: setattr(self.engine, "playing", p))
         self.engine.volume, self.engine.playing = state.volume, state.playing
@@ -348,6 +356,11 @@ class MainWindow(QtWidgets.QMainWindow):
                 self.show_error("Cannot open clip", str(exc))
                 self._clip_path = None
         return export.default_clip(sample_rate)
+
+    def _show_position_notice(self, message: str) -> None:
+        """Say for 5 s that a dragged position was kept inside the scene (ViewerState's ``clamped``)."""
+        self.position_notice.setText(message)
+        self._notice_timer.start()
 
     def _start_engine(self, sample_rate: int) -> None:
         if self.output is not None:

@@ -202,3 +202,10 @@ def test_closes_cleanly(qtbot, trained_ckpt):
     assert w.output is None or not w.output.available  # the audio stream is closed too
     assert not [t for t in threading.enumerate() if t.name.startswith("avgs")]
     assert [t for t in QtWidgets.QApplication.topLevelWidgets() if t.isVisible()] == []
+
+
+def test_a_position_kept_inside_the_scene_is_reported_in_the_status_bar(window):
+    hi = window.state.bounds[1]
+    window.state.set_listener((hi[0] + 40.0, hi[1] - 0.5, 0.0))  # as a drag far past the wall would
+    assert window.position_notice.text().startswith("listener kept inside the scene: (")
+    assert f"-> ({hi[0]:.2f}," in window.position_notice.text()
