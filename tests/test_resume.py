@@ -181,6 +181,7 @@ def _finish(proc: subprocess.Popen) -> None:
     assert proc.returncode == 0, err.decode()[-2000:]
 
 
+@pytest.mark.slow  # ~30 s: three training subprocesses; the in-process resumes above are the fast path
 def test_killed_runs_resume_bit_identically(quick_scene, tmp_path):
     """An uninterrupted ``avgs train`` subprocess, and one killed twice (just after the checkpoint
     before the densification at 4, and again after the one before 16) and resumed with --resume
