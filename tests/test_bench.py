@@ -12,6 +12,7 @@ from avgs.cli import main as cli_main
 from rwavs_writer import write_scene
 
 
+@pytest.mark.slow  # ~35 s: the whole `avgs bench --quick`, training its models (make test-all)
 def test_bench_quick_writes_the_report(tmp_path, capsys):
     scene = write_scene(tmp_path / "data", n_train=12, n_val=3, seed=0)
     out = tmp_path / "bench"
