@@ -23,6 +23,7 @@ def test_trained_avgs_beats_stereo_energy_on_a_generated_office(tmp_path):
     scene = write_scene(root, "office_t", SynthConfig.quick_config("office", seed=5, poses=80, workers=2),
                         progress=False).scene_dir
     runs = tmp_path / "runs"
+    runs.mkdir()  # outputs go into existing folders only
     args = ["train", str(scene), "--out", str(runs / "office_t.ckpt"), "--quick", "--iterations", "1500",
             "--no-progress"]
     assert cli_main(args) == 0
