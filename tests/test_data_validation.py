@@ -27,7 +27,7 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from avgs.data import rwavs
+from avgs.data import files, rwavs
 from avgs.data.rwavs import SPLITS, RWAVSScene
 from avgs.data.views import load_views
 from rwavs_writer import SR, WrittenScene, write_scene
@@ -339,7 +339,7 @@ def test_deeply_nested_json_is_refused(scene):
 
 def test_json_larger_than_the_limit_is_refused(scene):
     path = scene / "transforms_scale_val.json"
-    path.write_text(path.read_text() + " " * (rwavs.MAX_JSON_BYTES + 1))
+    path.write_text(path.read_text() + " " * (files.MAX_JSON_BYTES + 1))
     refused(RWAVSScene, scene, "transforms_scale_val.json", "more than the")
 
 

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from avgs.data.files import describe_json, finite_number
+
 
 @dataclass(frozen=True)
 class SceneFrame:
@@ -211,33 +213,3 @@ def similarity_fit_residual(world, normalised) -> float:
         s = float(np.trace(np.diag(S) @ D)) / var_w
         out = float(np.max(np.linalg.norm(s * dw @ R.T - dn, axis=-1)))
     return out if math.isfinite(out) else math.inf
-
-
-def describe_json(value) -> str:
-    """A short description of a parsed JSON value, for error messages (never a long repr)."""
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return f"a boolean ({str(value).lower()})"
-    if isinstance(value, str):
-        return f"a string ({value[:40]!r}{'...' if len(value) > 40 else ''})"
-    if isinstance(value, list):
-        return f"a list of {len(value)}"
-    if isinstance(value, dict):
-        return f"an object with {len(value)} key(s)"
-    if isinstance(value, int) and abs(value) > 10**15:
-        return f"an integer of about {int(value.bit_length() * 0.30103) + 1} digits"
-    return repr(value)
-
-
-def finite_number(value, what: str) -> float:
-    """``value`` as a float when it is a finite JSON number (not a boolean), else ValueError."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{what} must be a number, got {describe_json(value)}")
-    try:
-        x = float(value)
-    except OverflowError:
-        raise ValueError(f"{what} is too large ({describe_json(value)})") from None
-    if not math.isfinite(x):
-        raise ValueError(f"{what} must be finite, got {x!r}")
-    return x

@@ -38,12 +38,9 @@ regular file is refused by name.
 
 from __future__ import annotations
 
-import json
 import math
-import os
 import posixpath
 import re
-import stat
 import warnings
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
@@ -54,11 +51,19 @@ import torch
 
 from avgs import dsp
 from avgs.config import STFT, STFTConfig
+from avgs.data.files import (
+    describe_json,
+    file_present,
+    finite_number,
+    is_regular_file,
+    json_matrix4,
+    json_vector,
+    read_json,
+    require_file,
+)
 from avgs.data.frame import (
     RIGID_TOLERANCE,
     SceneFrame,
-    describe_json,
-    finite_number,
     frame_from_json,
     rigid_transform_problem,
     signed_direction,
@@ -75,11 +80,6 @@ FIT_TOLERANCE = 1e-3
 "RMS residual (normalised units) above which the fitted world <-> normalised map is reported as inexact."
 
 # -- limits of what a valid scene holds (see the module docstring) -------------------------
-MAX_JSON_BYTES = 16 * 2**20
-"""Largest JSON file read (16 MiB). The biggest legitimate one is a transforms file: ~400
-bytes a frame, and a frame a second for at most :data:`MAX_AUDIO_SECONDS` is ~1.5 MB."""
-MAX_JSON_DEPTH = 64
-"Deepest nesting of JSON arrays / objects accepted (our files nest at most 6 levels)."
 MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 8_000, 192_000
 "Sample rates (Hz) a WAV may declare at all, checked before the exact rate the model expects."
 MAX_AUDIO_SECONDS = 3600.0
@@ -138,141 +138,6 @@ class _PoseEntry:
 
 
 # -- validated reading: files, JSON, numbers -------------------------------------------------
-
-
-def require_file(path: Path, what: str) -> os.stat_result:
-    """``os.stat`` of a file that must exist and be a regular file (symbolic links followed)."""
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        if os.path.islink(path):
-            raise FileNotFoundError(f"{path}: a symbolic link to nothing; expected {what}") from None
-        raise FileNotFoundError(f"{path}: missing; expected {what}") from None
-    except NotADirectoryError:
-        raise FileNotFoundError(f"{path}: missing (a folder on its path is a file); expected {what}") from None
-    except OSError as exc:  # ELOOP (a symbolic-link loop), EACCES, ENAMETOOLONG, ...
-        raise ValueError(f"{path}: cannot be opened ({exc.strerror or exc}); expected {what}") from None
-    except ValueError as exc:  # an embedded NUL
-        raise ValueError(f"{str(path)[:200]!r}: not a usable path ({exc}); expected {what}") from None
-    if stat.S_ISDIR(st.st_mode):
-        raise ValueError(f"{path}: is a folder; expected {what}")
-    if not stat.S_ISREG(st.st_mode):
-        raise ValueError(f"{path}: not a regular file; expected {what}")
-    return st
-
-
-def file_present(path: Path, what: str) -> bool:
-    """True for a regular file at ``path``, False when nothing is there; an error for anything
-    else there (a folder, a symbolic-link loop, a link to nothing, a device)."""
-    try:
-        os.lstat(path)
-    except (FileNotFoundError, NotADirectoryError):
-        return False
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: cannot be opened ({exc}); expected {what}") from None
-    require_file(path, what)
-    return True
-
-
-def is_regular_file(path: Path) -> bool:
-    """``path.is_file()`` that is False, not an error, for any path the OS refuses
-    (a name too long, a symbolic-link loop, an embedded NUL)."""
-    try:
-        return stat.S_ISREG(os.stat(path).st_mode)
-    except (OSError, ValueError):
-        return False
-
-
-class _DuplicateKey(ValueError):
-    pass
-
-
-def _object_without_duplicates(pairs):
-    out = {}
-    for key, value in pairs:
-        if key in out:
-            raise _DuplicateKey(key)
-        out[key] = value
-    return out
-
-
-def _json_child(where: str, key) -> str:
-    if isinstance(key, int):
-        return f"{where}[{key}]"
-    text = key if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,60}", key) else repr(key[:60])
-    return f"{where}.{text}" if where else text
-
-
-def _json_problem(value) -> str | None:
-    """The first non-finite number or too deep nesting in parsed JSON, as ``where: what``."""
-    stack = [(value, "", 0)]
-    while stack:
-        v, where, depth = stack.pop()
-        if isinstance(v, float) and not math.isfinite(v):
-            spelled = "NaN" if math.isnan(v) else ("Infinity" if v > 0 else "-Infinity")
-            return f"{where or 'the value'} is {spelled}; numbers must be finite (no NaN or Infinity)"
-        if isinstance(v, (dict, list)):
-            if depth >= MAX_JSON_DEPTH:
-                return f"{where or 'the value'} nests deeper than {MAX_JSON_DEPTH} levels"
-            items = list(v.items()) if isinstance(v, dict) else list(enumerate(v))
-            stack.extend((child, _json_child(where, key), depth + 1) for key, child in reversed(items))
-    return None
-
-
-def read_json(path: Path, what: str):
-    """Parsed JSON of ``path``, validated: a regular file of at most :data:`MAX_JSON_BYTES`,
-    strict UTF-8, valid JSON nested at most :data:`MAX_JSON_DEPTH` levels, no NaN or
-    Infinity (nor numbers that overflow to it), no key twice in one object. Errors name the
-    file (and the place in it) and say what was ``what``-expected."""
-    path = Path(path)
-    st = require_file(path, what)
-    if st.st_size > MAX_JSON_BYTES:
-        raise ValueError(f"{path}: {st.st_size} bytes, more than the {MAX_JSON_BYTES} a scene's JSON may have; expected {what}")
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read(MAX_JSON_BYTES + 1)
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot be read ({exc.strerror or exc}); expected {what}") from None
-    if len(data) > MAX_JSON_BYTES:
-        raise ValueError(f"{path}: more than the {MAX_JSON_BYTES} bytes a scene's JSON may have; expected {what}")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason}); expected {what}") from None
-    try:
-        value = json.loads(text, object_pairs_hook=_object_without_duplicates)
-    except RecursionError:
-        raise ValueError(f"{path}: JSON nested too deeply (more than {MAX_JSON_DEPTH} levels); expected {what}") from None
-    except _DuplicateKey as exc:
-        raise ValueError(f"{path}: key {str(exc.args[0])[:60]!r} appears twice in one object; expected {what}") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc}); expected {what}") from None
-    except ValueError as exc:  # e.g. an integer of more than sys.get_int_max_str_digits() digits
-        raise ValueError(f"{path}: not valid JSON ({str(exc)[:200]}); expected {what}") from None
-    problem = _json_problem(value)
-    if problem is not None:
-        raise ValueError(f"{path}: {problem}")
-    return value
-
-
-_read_json = read_json  # the name the readers used before
-
-
-def json_vector(value, n: int, where: str) -> np.ndarray:
-    """``[n]`` float64 from a JSON list of ``n`` finite numbers (not booleans or strings)."""
-    if not isinstance(value, list) or len(value) != n:
-        raise ValueError(f"{where} must be a list of {n} numbers, got {describe_json(value)}")
-    return np.array([finite_number(v, f"{where}[{i}]") for i, v in enumerate(value)], dtype=np.float64)
-
-
-def json_matrix4(value, where: str) -> np.ndarray:
-    """``[4, 4]`` float64 from 16 numbers row-major, or 4 rows of 4 numbers."""
-    if isinstance(value, list) and len(value) == 4 and all(isinstance(row, list) for row in value):
-        rows = [json_vector(row, 4, f"{where}[{i}]") for i, row in enumerate(value)]
-        return np.stack(rows)
-    if not isinstance(value, list) or len(value) != 16:
-        raise ValueError(f"{where} must be 16 numbers (row-major 4x4), got {describe_json(value)}")
-    return json_vector(value, 16, where).reshape(4, 4)
 
 
 def check_coordinates(points, where: str) -> None:

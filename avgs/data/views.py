@@ -28,17 +28,14 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from avgs.data.frame import SceneFrame, finite_number
+from avgs.data.files import file_present, finite_number, is_regular_file, read_json, require_file
+from avgs.data.frame import SceneFrame
 from avgs.data.rwavs import (
     METADATA_FILE,
     SPLITS,
     check_coordinates,
-    file_present,
     frame_number_of,
-    is_regular_file,
     read_camera_path,
-    read_json,
-    require_file,
     scene_frame_from_json,
     transforms_path,
 )
