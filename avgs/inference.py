@@ -352,7 +352,7 @@ class SceneRenderer:
         synthesis = self.synthesis if synthesis is None else synthesis
         with self._lock, torch.inference_mode():
             m, theta, lis, src = self._masks(listener, yaw, source)
-            m32 = self.float32(m)
+            m32 = m.to(torch.float32)
             y = np.empty((2, x.size), dtype=np.float32)  # [2, T]
             mags, top = None, 0.0
             for lo, hi, piece in self._pieces(x, m32, synthesis, whole=magnitudes):
@@ -407,14 +407,6 @@ class SceneRenderer:
         """B's time-frequency conv head (``--post-conv``), or None for the mask model."""
         return self.model.binauralizer.post_conv
 
-    @staticmethod
-    def float32(m: Masks) -> Masks:
-        """The masks in float32, the precision of the synthesis (a no-op for a float32 model)."""
-        def f(t):
-            return t.float() if t is not None and t.is_floating_point() else t
-
-        return Masks(f(m.mixture), f(m.difference), f(m.reverb), f(m.decay), m.listener_vicinity, m.source_vicinity)
-
     def stream(self, listener, yaw: float, source=None):
         """A :class:`avgs.streaming.BinauralStream` for this pose: feed mono blocks, then ``flush()``.
 
@@ -432,7 +424,7 @@ class SceneRenderer:
             )
         with self._lock, torch.inference_mode():
             m, *_ = self._masks(listener, yaw, source)
-            return BinauralStream(self.float32(m), self.stft)
+            return BinauralStream(m.to(torch.float32), self.stft)
 
     def __repr__(self) -> str:
         return f"SceneRenderer({self.name!r}: {len(self._points)} audio points, {self.sample_rate} Hz)"

@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from avgs import dsp
-from avgs.acoustics.reverb_tail import fill_phase, tail_power_recursive
-from avgs.acoustics.synthesis import Masks, binaural_waveform, ear_gains, ear_magnitudes
+from avgs.acoustics.reverb_tail import tail_power_recursive
+from avgs.acoustics.synthesis import Masks, binaural_waveform, ear_gains, ear_magnitudes, source_phase
 from avgs.config import STFT, STFTConfig, SynthesisConfig
 
 
@@ -49,10 +49,7 @@ class BinauralStream:
             raise ValueError(f"a stream takes the masks of one pose, [1, {stft.n_freq}] for n_fft {stft.n_fft}; got {shapes}")
         self.stft = stft
 
-        def f64(t):
-            return None if t is None else t.detach().to("cpu", torch.float64)
-
-        self.masks = Masks(f64(masks.mixture), f64(masks.difference), f64(masks.reverb), f64(masks.decay))
+        self.masks = masks.to(torch.float64, "cpu")
         "The pose's masks in float64, on the CPU."
         self.gains = ear_gains(self.masks.mixture, self.masks.difference)[0].numpy()  # [2, F]
         self._tail_state = None  # [1, F] float64 tensor: decayed power of the frames so far
@@ -117,9 +114,8 @@ class BinauralStream:
         power, self._tail_state = tail_power_recursive(mag_t, self.masks.decay, self._tail_state)
         _, s_l, s_r = ear_magnitudes(mag_t, self.masks, power)
         ear_mag = torch.cat([s_l, s_r]).numpy().transpose(0, 2, 1)  # [2, m, F]
-        fill = fill_phase(mag.shape[1], t0, mag.shape[0]).numpy().T  # [m, F] for frames t0, t0 + 1, ...
-        phase = np.where(mag > 0, spec / np.where(mag > 0, mag, 1.0), fill)
-        return ear_mag * phase[None]
+        phase = source_phase(torch.from_numpy(np.ascontiguousarray(spec.T))[None], t0, tail=True)[0]  # [F, m], frames t0 ..
+        return ear_mag * phase.numpy().T[None]
 
     def _envelope(self, j: np.ndarray, n_frames: int | None) -> np.ndarray:
         """sum_t w^2(j - t hop) over frames 0 <= t < n_frames (None: unbounded) at padded indices j."""
@@ -191,7 +187,5 @@ class BinauralStream:
             return np.zeros((2, 0), dtype=np.float32)
         with torch.inference_mode():
             spec = dsp.stft(torch.from_numpy(x.astype(np.float32))[None], self.stft)  # [1, F, N]
-            masks = Masks(*(None if t is None else t.float() for t in
-                            (self.masks.mixture, self.masks.difference, self.masks.reverb, self.masks.decay)))
-            y = binaural_waveform(spec, masks, len(x), self.stft, synthesis=SynthesisConfig(phase_iterations=0))[0]
+            y = binaural_waveform(spec, self.masks.to(torch.float32), len(x), self.stft, synthesis=SynthesisConfig(phase_iterations=0))[0]
         return y.numpy()

@@ -45,6 +45,14 @@ class Masks:
     def with_vicinity(self, listener: torch.Tensor, source: torch.Tensor) -> "Masks":
         return replace(self, listener_vicinity=listener, source_vicinity=source)
 
+    def to(self, dtype: torch.dtype | None = None, device=None) -> "Masks":
+        """The masks detached from autograd, their real tensors in ``dtype`` on ``device`` (vicinities as they are)."""
+        def f(t):
+            return None if t is None else t.detach().to(device=device, dtype=dtype)
+
+        return replace(self, mixture=f(self.mixture), difference=f(self.difference), reverb=f(self.reverb),
+                       decay=f(self.decay))
+
 
 def ear_gains(mixture: torch.Tensor, difference: torch.Tensor) -> torch.Tensor:
     """The per-ear gains ``m_m (1 + m_d)`` (left) and ``m_m (1 - m_d)`` (right): masks [..., F] -> [..., 2, F]."""

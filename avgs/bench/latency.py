@@ -75,7 +75,7 @@ def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
             masks = run("binauralizer", lambda: model.binauralizer(lis[:, :2], theta, ctx, cache.frequency))
             spec = run("stft", lambda: dsp.stft(x.to(dev)[None], renderer.stft))
             # masks (and the reverberant tail, if any) applied, then the inverse STFT and the phase iterations
-            run("synthesis", lambda: binaural_waveform(spec, renderer.float32(masks), mono.size, renderer.stft,
+            run("synthesis", lambda: binaural_waveform(spec, masks.to(torch.float32), mono.size, renderer.stft,
                                                        renderer.post_conv, renderer.synthesis).cpu())
     return sw.timings()
 

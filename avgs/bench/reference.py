@@ -31,9 +31,9 @@ class UncachedPath:
         peak = float(np.max(np.abs(mono))) or 1.0  # at unit peak, as render() runs
         with torch.inference_mode(not self.grad), torch.set_grad_enabled(self.grad):
             lis, theta, src = r.pose(listener, yaw)
-            masks = r.float32(r.model.masks(lis, theta, src))
+            masks = r.model.masks(lis, theta, src)
         with torch.inference_mode():
-            masks = type(masks)(*(None if t is None else t.detach() for t in (masks.mixture, masks.difference, masks.reverb, masks.decay)))
+            masks = masks.to(torch.float32)
             spec = dsp.stft(torch.from_numpy(mono / np.float32(peak)).to(r.device)[None], r.stft)
             y = binaural_waveform(spec, masks, mono.size, r.stft, r.post_conv, r.synthesis)[0]
             return y.float().cpu().numpy() * np.float32(peak)
