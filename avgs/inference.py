@@ -50,15 +50,6 @@ RENDER_BLOCK_FRAMES = 2048
 "Frames per block when a long input is rendered (about 12 s at AV-NeRF's hop): memory stays bounded."
 
 
-class _Piece(np.ndarray):
-    """A stretch of the input, and where it starts (``offset``, samples)."""
-
-    def __new__(cls, samples: np.ndarray, offset: int):
-        obj = np.asarray(samples).view(cls)
-        obj.offset = int(offset)
-        return obj
-
-
 class PositionClamped(UserWarning):
     """A listener or source outside the scene's box was moved onto its edge."""
 
@@ -355,15 +346,16 @@ class SceneRenderer:
             m32 = m.to(torch.float32)
             y = np.empty((2, x.size), dtype=np.float32)  # [2, T]
             mags, top = None, 0.0
-            for lo, hi, piece in self._pieces(x, m32, synthesis, whole=magnitudes):
-                spec = dsp.stft(torch.from_numpy(piece / np.float32(scale)).to(self.device)[None], self.stft)  # [1, F, N]
-                ears = ear_spectrogram(spec, m32, self.post_conv, piece.offset // self.stft.hop_length)  # [1, 2, F, N]
-                wave = waveform(ears, piece.size, self.stft, synthesis)[0]  # [2, piece]
-                y[:, lo:hi] = wave[:, lo - piece.offset : hi - piece.offset].float().cpu().numpy()
+            for lo, hi, start, stop in self._pieces(x.size, m32, synthesis, whole=magnitudes):
+                piece = torch.from_numpy(x[start:stop] / np.float32(scale)).to(self.device)  # [stop - start]
+                spec = dsp.stft(piece[None], self.stft)  # [1, F, N]
+                ears = ear_spectrogram(spec, m32, self.post_conv, start // self.stft.hop_length)  # [1, 2, F, N]
+                wave = waveform(ears, stop - start, self.stft, synthesis)[0]  # [2, stop - start]
+                y[:, lo:hi] = wave[:, lo - start : hi - start].float().cpu().numpy()
                 top = max(top, _peak(y[:, lo:hi]))  # NaN once any sample is not finite
                 if magnitudes:
                     mags = np.ascontiguousarray((ears[0].abs().double().cpu().numpy() * scale).astype(np.float32))
-                del spec, ears, wave
+                del piece, spec, ears, wave
         if not math.isfinite(top):
             raise ValueError(f"{self.path or 'this checkpoint'}: the render at listener {listener!r} is not finite")
         limit = 10.0 ** (HEADROOM_DB / 20.0)  # the output's peak, relative to the input's (1 here)
@@ -374,9 +366,9 @@ class SceneRenderer:
         y *= np.float32(scale)
         return self._result(m, theta, lis, src, binaural=y, magnitudes=mags)
 
-    def _pieces(self, x: np.ndarray, masks: Masks, synthesis: SynthesisConfig, whole: bool = False):
-        """Yield (lo, hi, piece): output samples [lo, hi) are those of ``piece``, a stretch of ``x``
-        (``piece.offset``: where it starts) with enough margin for the result to equal one pass.
+    def _pieces(self, length: int, masks: Masks, synthesis: SynthesisConfig, whole: bool = False):
+        """Yield (lo, hi, start, stop): output samples [lo, hi) are those of the input's samples
+        [start, stop), a stretch with enough margin for the result to equal one pass.
 
         The filter of a pose is fixed, and output frame t depends only on input frames within
         a reach: the STFT window (a frame either side), the tail (its decay to NEGLIGIBLE_POWER,
@@ -388,19 +380,19 @@ class SceneRenderer:
         from avgs.acoustics.reverb_tail import tail_length
 
         hop = self.stft.hop_length
-        n = dsp.n_frames(x.size, self.stft)
+        n = dsp.n_frames(length, self.stft)
         window = -(-self.stft.n_fft // hop)  # frames one window overlaps on each side, plus one
         tail = 0 if masks.decay is None else tail_length(masks.decay, n)
         margin = tail + window * (synthesis.phase_iterations + 2) + (CONTEXT_FRAMES if self.post_conv is not None else 0)
         block = RENDER_BLOCK_FRAMES
         if whole or n <= block + 2 * margin:
-            yield 0, x.size, _Piece(x, 0)
+            yield 0, length, 0, length
             return
         for s in range(0, n, block):
             e = min(n, s + block)
             a, b = max(0, s - margin), min(n, e + margin)
-            start, stop = a * hop, (x.size if b == n else b * hop)  # centred frames a .. b-1 of the piece
-            yield s * hop, (x.size if e == n else e * hop), _Piece(x[start:stop], start)
+            start, stop = a * hop, (length if b == n else b * hop)  # centred frames a .. b-1 of the piece
+            yield s * hop, (length if e == n else e * hop), start, stop
 
     @property
     def post_conv(self):
