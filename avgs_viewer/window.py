@@ -10,6 +10,7 @@ a background thread too, so the window shows before torch is even imported.
 
 from __future__ import annotations
 
+import gc
 import threading
 import traceback
 from pathlib import Path
@@ -284,6 +285,10 @@ class MainWindow(QtWidgets.QMainWindow):
         self.statusBar().showMessage(f"Loading {path} ...")
 
         def load() -> None:
+            # A garbage collection run on this thread could delete Qt or VTK objects (a closed
+            # window's cycles) off the GUI thread, which aborts the process: none runs while loading.
+            collecting = gc.isenabled()
+            gc.disable()
             try:
                 from avgs import SceneRenderer  # torch is imported here, off the GUI thread
 
@@ -294,7 +299,11 @@ class MainWindow(QtWidgets.QMainWindow):
                 self._bridge.load_failed.emit(path, message)
             else:
                 self._bridge.loaded.emit(path, renderer)
+            finally:
+                if collecting:
+                    gc.enable()
 
+        gc.collect()  # here, on the GUI thread, what earlier scenes and windows left behind
         threading.Thread(target=load, name="avgs-load", daemon=True).start()
 
     def _on_load_failed(self, path: Path, message: str) -> None:
