@@ -252,18 +252,36 @@ class TrainConfig:
 
 @dataclass(frozen=True)
 class SynthesisConfig:
-    """How a waveform is made from B's predicted ear magnitudes (render time, not training).
+    """How a pose's masks become a waveform (render time, not training).
 
-    AV-NeRF and the paper take the source's phase. Those magnitudes with that phase are
-    rarely the STFT of any signal, so the waveform's own spectrogram comes out blurred
-    away from the prediction. A few iterations of fast Griffin-Lim (Perraudin et al.
-    2013), starting from the source's phase, bring it back (:func:`avgs.dsp.griffin_lim`).
+    The masks are time-invariant, so a pose is a filter: its binaural impulse response
+    (:mod:`avgs.acoustics.impulse_response`: a minimum-phase direct part and the
+    reverberant tail as decaying noise). ``filter`` convolves the input with it: linear,
+    block-streamable, what the explorer plays. ``spectrogram`` makes a waveform whose STFT
+    magnitudes are B's predicted ear magnitudes (what MAG scores), with the phase of the
+    filter's output (``phase="filter"``) or of the source (``"source"``, the paper's and
+    AV-NeRF's synthesis), refined by ``phase_iterations`` of fast Griffin-Lim (Perraudin
+    et al. 2013; :func:`avgs.dsp.griffin_lim`). Speed and error of each: docs/results.md.
+    Checkpoints with the conv head (``--post-conv``), whose output is not a filter, use
+    ``spectrogram`` with the source's phase.
     """
 
-    phase_iterations: int = 8
-    "Fast Griffin-Lim iterations from the source's phase; 0 keeps the source's phase (the paper's)."
+    method: Literal["filter", "spectrogram"] = "spectrogram"
+    "filter: convolve with the pose's binaural impulse response; spectrogram: the predicted ear magnitudes with a phase."
+    phase: Literal["filter", "source"] = "filter"
+    "With method spectrogram: take the phase of the filter's output, or of the source (the paper's)."
+    phase_iterations: int = 0
+    "With method spectrogram: fast Griffin-Lim iterations from that phase (0: none)."
     phase_momentum: float = 0.99
     "Momentum of fast Griffin-Lim (0 is the original Griffin-Lim)."
+
+    def __post_init__(self):
+        if self.method not in ("filter", "spectrogram"):
+            raise ValueError(f"synthesis method must be 'filter' or 'spectrogram', got {self.method!r}")
+        if self.phase not in ("filter", "source"):
+            raise ValueError(f"synthesis phase must be 'filter' or 'source', got {self.phase!r}")
+        if self.phase_iterations < 0:
+            raise ValueError(f"phase_iterations must be >= 0, got {self.phase_iterations}")
 
 
 ADDED_LATER = {"acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False}}

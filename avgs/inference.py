@@ -6,9 +6,12 @@ happens here and nowhere else. Rendering runs the model's own code
 (:meth:`AVGSModel.masks <avgs.acoustics.model.AVGSModel.masks>`) under
 ``torch.inference_mode`` with its caches: the pose-independent parts of F and B
 (:meth:`~avgs.acoustics.model.AVGSModel.precompute`) and the source context C_S, kept
-until the source moves. The masks are time-invariant, so any input length costs one STFT,
-one multiply and the synthesis of :mod:`avgs.acoustics.synthesis`
-(:meth:`SceneRenderer.stream` does the same block by block).
+until the source moves. The masks are time-invariant, so a pose is a filter: by default
+(:class:`~avgs.config.SynthesisConfig` ``method="filter"``) its binaural impulse response
+(:meth:`SceneRenderer.binaural_filter`, :mod:`avgs.acoustics.impulse_response`) convolved
+with the input by FFT, for any length; :meth:`SceneRenderer.stream` does the same block by
+block. ``method="spectrogram"`` synthesises the predicted ear magnitudes instead
+(:mod:`avgs.acoustics.synthesis`, with phase iterations).
 
 Bounded sound: the listener and the source are kept inside the scene's box
 (:attr:`SceneRenderer.bounds`, which holds its audio points, G, the training poses and the
@@ -36,7 +39,9 @@ import torch
 
 from avgs import dsp
 from avgs.data.frame import signed_direction
+from avgs.acoustics.impulse_response import TailShaper, convolve, impulse_response
 from avgs.acoustics.synthesis import Masks, ear_gains, ear_spectrogram, waveform
+from avgs.streaming import unit_phase
 from avgs.checkpoint import config_of, load_checkpoint, stft_of
 from avgs.config import SynthesisConfig
 from avgs.data.frame import SceneFrame
@@ -71,6 +76,7 @@ class RenderResult:
     reverb: np.ndarray | None = None  # [2, F] float32 reverberant gains (left, right); None without a tail
     binaural: np.ndarray | None = None  # [2, T] float32, channel 0 = left ear; None from masks()
     magnitudes: np.ndarray | None = None  # [2, F, N_t] float32 predicted ear magnitudes; only when asked for
+    impulse: np.ndarray | None = None  # [2, L] float32 binaural impulse response, from binaural_filter()
     listener: np.ndarray | None = None  # [3] world, the listener position used (inside the scene's box)
     source: np.ndarray | None = None  # [3] world, the source position used
 
@@ -150,6 +156,9 @@ class SceneRenderer:
         "The training source in the model's normalised frame."
         self._lock = threading.RLock()
         self._source_cache: tuple[tuple, tuple] | None = None  # (key, (C_S, idx))
+        tail = self.model.binauralizer.reverb
+        self._tail = None if tail is None else TailShaper(tail.decay().detach(), self.stft)
+        "The reverberant tail's decaying noise (scene-wide), shaped per pose by :meth:`binaural_filter`."
 
         X = pts["X"].detach().cpu().double().numpy()
         self._points = _readonly(self.frame.to_world(X).astype(np.float32))
@@ -326,10 +335,11 @@ class SceneRenderer:
     ) -> RenderResult:
         """Binaural ``[2, T]`` float32 of ``mono [T]`` (any length >= 1) heard at ``listener`` facing ``yaw`` degrees.
 
-        With ``magnitudes=True`` the result also holds the predicted ear magnitudes
-        ``[2, F, N_t]`` that the waveform was synthesised from (what AV-NeRF's MAG scores).
-        The waveform is made of them as ``synthesis`` says, by default :attr:`synthesis`:
-        a few fast Griffin-Lim iterations from the source's phase (:class:`avgs.config.SynthesisConfig`).
+        The waveform is made as ``synthesis`` says, by default :attr:`synthesis`: the input
+        convolved with the pose's binaural impulse response (:meth:`binaural_filter`), or the
+        predicted ear magnitudes with the source's phase and phase iterations
+        (:class:`avgs.config.SynthesisConfig`). With ``magnitudes=True`` the result also holds
+        the predicted ear magnitudes ``[2, F, N_t]`` (what AV-NeRF's MAGp scores).
         """
         x = np.asarray(mono, dtype=np.float32)
         if x.ndim == 2 and 1 in x.shape:
@@ -343,19 +353,7 @@ class SceneRenderer:
         synthesis = self.synthesis if synthesis is None else synthesis
         with self._lock, torch.inference_mode():
             m, theta, lis, src = self._masks(listener, yaw, source)
-            m32 = m.to(torch.float32)
-            y = np.empty((2, x.size), dtype=np.float32)  # [2, T]
-            mags, top = None, 0.0
-            for lo, hi, start, stop in self._pieces(x.size, m32, synthesis, whole=magnitudes):
-                piece = torch.from_numpy(x[start:stop] / np.float32(scale)).to(self.device)  # [stop - start]
-                spec = dsp.stft(piece[None], self.stft)  # [1, F, N]
-                ears = ear_spectrogram(spec, m32, self.post_conv, start // self.stft.hop_length)  # [1, 2, F, N]
-                wave = waveform(ears, stop - start, self.stft, synthesis)[0]  # [2, stop - start]
-                y[:, lo:hi] = wave[:, lo - start : hi - start].float().cpu().numpy()
-                top = max(top, _peak(y[:, lo:hi]))  # NaN once any sample is not finite
-                if magnitudes:
-                    mags = np.ascontiguousarray((ears[0].abs().double().cpu().numpy() * scale).astype(np.float32))
-                del piece, spec, ears, wave
+            y, mags, top = self._synthesise(x, scale, m, synthesis, magnitudes)
         if not math.isfinite(top):
             raise ValueError(f"{self.path or 'this checkpoint'}: the render at listener {listener!r} is not finite")
         limit = 10.0 ** (HEADROOM_DB / 20.0)  # the output's peak, relative to the input's (1 here)
@@ -365,6 +363,59 @@ class SceneRenderer:
             y *= np.float32(limit / top)
         y *= np.float32(scale)
         return self._result(m, theta, lis, src, binaural=y, magnitudes=mags)
+
+    def _synthesise(self, x: np.ndarray, scale: float, m: Masks, synthesis: SynthesisConfig, magnitudes: bool = False,
+                    impulse: np.ndarray | None = None):
+        """(binaural [2, T] float32 of ``x / scale``, predicted magnitudes [2, F, N_t] times ``scale`` or
+        None, the output's peak): the synthesis of one pose's masks ``m``; ``impulse``: its
+        response when already made (:meth:`_impulse`)."""
+        m32 = m.to(torch.float32)
+        y = np.empty((2, x.size), dtype=np.float32)  # [2, T]
+        mags, top = None, 0.0
+        filtered = None  # [2, T] the input through the pose's filter, when the synthesis uses it
+        if self.post_conv is None and (synthesis.method == "filter" or synthesis.phase == "filter"):
+            h = self._impulse(m) if impulse is None else impulse
+            filtered = convolve(torch.from_numpy(x) / np.float32(scale), torch.from_numpy(h))
+        if synthesis.method == "filter" and filtered is not None:
+            y[:] = filtered.numpy()
+            top = _peak(y)
+            pieces = [(0, x.size, 0, x.size)] if magnitudes else []  # the predicted magnitudes only
+        else:
+            pieces = self._pieces(x.size, m32, synthesis, whole=magnitudes)
+        for lo, hi, start, stop in pieces:
+            piece = torch.from_numpy(x[start:stop] / np.float32(scale)).to(self.device)  # [stop - start]
+            spec = dsp.stft(piece[None], self.stft)  # [1, F, N]
+            ears = ear_spectrogram(spec, m32, self.post_conv, start // self.stft.hop_length)  # [1, 2, F, N]
+            if magnitudes:
+                mags = np.ascontiguousarray((ears[0].abs().double().cpu().numpy() * scale).astype(np.float32))
+            if synthesis.method == "filter" and filtered is not None:
+                break
+            if filtered is not None:  # the predicted magnitudes with the filter's phase
+                ears = ears.abs() * unit_phase(dsp.stft(filtered[:, start:stop].to(self.device), self.stft))
+            wave = waveform(ears, stop - start, self.stft, synthesis)[0]  # [2, stop - start]
+            y[:, lo:hi] = wave[:, lo - start : hi - start].float().cpu().numpy()
+            top = max(top, _peak(y[:, lo:hi]))  # NaN once any sample is not finite
+            del piece, spec, ears, wave
+        return y, mags, top
+
+    def _impulse(self, m: Masks) -> np.ndarray:
+        """The binaural impulse response ``[2, L]`` float32 of one pose's masks."""
+        return impulse_response(m, self.stft, self._tail)[0].float().numpy()
+
+    def binaural_filter(self, listener, yaw: float, source=None) -> RenderResult:
+        """The pose as a filter: masks and ``impulse``, its binaural impulse response ``[2, L]``
+        (float32, channel 0 = left; :mod:`avgs.acoustics.impulse_response`).
+
+        Convolving a mono signal with it is :meth:`render` with the default synthesis, before
+        the output's peak limit. Positions are kept inside the scene and the filter within
+        the headroom, as for :meth:`render`.
+        """
+        if self.post_conv is not None:
+            raise ValueError(f"{self.path or 'this checkpoint'}: trained with the time-frequency conv head "
+                             "(--post-conv), whose output depends on the input: it is not a filter")
+        with self._lock, torch.inference_mode():
+            m, theta, lis, src = self._masks(listener, yaw, source)
+            return self._result(m, theta, lis, src, impulse=self._impulse(m))
 
     def _pieces(self, length: int, masks: Masks, synthesis: SynthesisConfig, whole: bool = False):
         """Yield (lo, hi, start, stop): output samples [lo, hi) are those of the input's samples
@@ -400,23 +451,31 @@ class SceneRenderer:
         return self.model.binauralizer.post_conv
 
     def stream(self, listener, yaw: float, source=None):
-        """A :class:`avgs.streaming.BinauralStream` for this pose: feed mono blocks, then ``flush()``.
+        """A stream for this pose: feed mono blocks of any size to ``process``, then ``flush()``;
+        the concatenated output equals :meth:`render` of the whole input (float rounding).
 
-        The concatenated output equals :meth:`render` of the whole input (float rounding)
-        made with the source's phase (``SynthesisConfig(phase_iterations=0)``): phase
-        iterations need the whole signal, a stream keeps the source's phase.
+        With the default synthesis a :class:`avgs.streaming.BinauralStream`, with
+        ``method="filter"`` a :class:`avgs.acoustics.convolution.ConvolutionStream`. Phase
+        iterations and the source's phase need the whole signal: such renderers do not stream.
         """
+        from avgs.acoustics.convolution import ConvolutionStream
         from avgs.streaming import BinauralStream
 
-        if self.model.binauralizer.post_conv is not None:
+        where = self.path or "this checkpoint"
+        if self.post_conv is not None:
             raise ValueError(
-                f"{self.path or 'this checkpoint'}: trained with the time-frequency conv head (--post-conv), whose "
+                f"{where}: trained with the time-frequency conv head (--post-conv), whose "
                 "output depends on neighbouring frames; block streaming supports only the mask model. "
                 "Use render() on the whole signal."
             )
+        s = self.synthesis
+        if s.method == "spectrogram" and (s.phase != "filter" or s.phase_iterations > 0):
+            raise ValueError(f"{where}: a stream cannot do {s.phase_iterations} phase iterations from the {s.phase}'s "
+                             "phase (they need the whole signal); stream with SynthesisConfig() or method='filter'")
         with self._lock, torch.inference_mode():
             m, *_ = self._masks(listener, yaw, source)
-            return BinauralStream(m.to(torch.float32), self.stft)
+            impulse = self._impulse(m)
+            return ConvolutionStream(impulse) if s.method == "filter" else BinauralStream(m.to(torch.float32), impulse, self.stft)
 
     def __repr__(self) -> str:
         return f"SceneRenderer({self.name!r}: {len(self._points)} audio points, {self.sample_rate} Hz)"

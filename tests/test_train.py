@@ -230,21 +230,23 @@ def test_render_command_resamples_and_downmixes(tmp_path, untrained_ckpt):
 
 
 def test_render_command_phase_iterations(tmp_path, untrained_ckpt):
-    """--phase-iterations 0 writes the source-phase synthesis, the renderer's with phase_iterations=0."""
+    """--phase source writes the source-phase synthesis; the default the predicted magnitudes with the filter's phase."""
     from avgs.config import SynthesisConfig
 
     mono = np.random.default_rng(1).standard_normal(5000).astype(np.float32) * 0.1
     sf.write(tmp_path / "in.wav", mono, 22050, subtype="FLOAT")
     args = ["render", str(untrained_ckpt), "--listener", "1", "1", "1.6", "--yaw", "45", "--input", str(tmp_path / "in.wav")]
-    assert cli_main([*args, "--output", str(tmp_path / "plain.wav"), "--phase-iterations", "0"]) == 0
+    assert cli_main([*args, "--output", str(tmp_path / "plain.wav"), "--phase", "source"]) == 0
     assert cli_main([*args, "--output", str(tmp_path / "default.wav")]) == 0
     plain, _ = sf.read(tmp_path / "plain.wav", always_2d=True, dtype="float32")
     default, _ = sf.read(tmp_path / "default.wav", always_2d=True, dtype="float32")
-    ref = SceneRenderer.load(untrained_ckpt, synthesis=SynthesisConfig(phase_iterations=0)).render((1, 1, 1.6), 45.0, mono)
-    np.testing.assert_allclose(plain.T, ref.binaural, atol=1e-6)
+    ref = SceneRenderer.load(untrained_ckpt, synthesis=SynthesisConfig(phase="source"))
+    np.testing.assert_allclose(plain.T, ref.render((1, 1, 1.6), 45.0, mono).binaural, atol=1e-6)
+    np.testing.assert_allclose(default.T, SceneRenderer.load(untrained_ckpt).render((1, 1, 1.6), 45.0, mono).binaural, atol=1e-6)
     assert not np.allclose(default, plain, atol=1e-4)
-    assert cli_main([*args, "--output", str(tmp_path / "bad.wav"), "--phase-iterations", "-1"]) == 2
-    assert not (tmp_path / "bad.wav").exists()
+    for bad in (["--phase-iterations", "-1"],):
+        assert cli_main([*args, "--output", str(tmp_path / "bad.wav"), *bad]) == 2
+        assert not (tmp_path / "bad.wav").exists()
 
 
 def test_info_command_json(capsys, untrained_ckpt):

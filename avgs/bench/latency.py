@@ -45,13 +45,9 @@ def time_render(render, poses, mono, repeats: int, warmup: int = 3, device="cpu"
 
 def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
     """Time the stages of :meth:`SceneRenderer.render` one by one, with its caches."""
-    from avgs import dsp
-    from avgs.acoustics.synthesis import binaural_waveform
-
     model, cache = renderer.model, renderer.cache
     dev = renderer.device
     sw = Stopwatch()
-    x = torch.from_numpy(mono)
     with torch.inference_mode():
         for i in range(repeats + 3):
             lis_w, yaw = poses[i % len(poses)]
@@ -73,10 +69,9 @@ def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
                 c_l = run("field", lambda: model.context_at(lis, idx, cache))
                 ctx = torch.cat([c_s[None], c_l], dim=-1)
             masks = run("binauralizer", lambda: model.binauralizer(lis[:, :2], theta, ctx, cache.frequency))
-            spec = run("stft", lambda: dsp.stft(x.to(dev)[None], renderer.stft))
-            # masks (and the reverberant tail, if any) applied, then the inverse STFT and the phase iterations
-            run("synthesis", lambda: binaural_waveform(spec, masks.to(torch.float32), mono.size, renderer.stft,
-                                                       renderer.post_conv, renderer.synthesis).cpu())
+            h = run("impulse response", lambda: renderer._impulse(masks))
+            # the convolution, the STFTs, the predicted magnitudes with their phase, the inverse STFT
+            run("synthesis", lambda: renderer._synthesise(mono, 1.0, masks, renderer.synthesis, impulse=h))
     return sw.timings()
 
 

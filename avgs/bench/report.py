@@ -53,7 +53,7 @@ def plot_latency(latency: dict, path: Path) -> Path:
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     ax = axes[0]
-    stages = ("vicinity", "field", "binauralizer", "stft", "synthesis")
+    stages = ("vicinity", "field", "binauralizer", "impulse response", "synthesis")
     devices = list(latency)
     left = np.zeros(len(devices))
     for s in stages:
@@ -199,9 +199,9 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
         for dev, d in lat.items():
             rows.append([dev, d["points"], d["k"], _f(d["render"]["median_ms"], "{:.2f}"), _f(d["render"]["p95_ms"], "{:.2f}"),
                          _f(d["masks"]["median_ms"], "{:.2f}")] + [_f(d["stages"].get(s, {}).get("median_ms"), "{:.3f}") for s in
-                                                                   ("vicinity", "field", "binauralizer", "stft", "synthesis")])
+                                                                   ("vicinity", "field", "binauralizer", "impulse response", "synthesis")])
         L += _table(["device", "points", "k", "render ms (median)", "p95", "masks only", "vicinity", "field F", "binauralizer B",
-                     "STFT", "synthesis + iSTFT"], rows)
+                     "impulse response", "synthesis"], rows)
         for dev, d in lat.items():
             if "render_1_thread" in d:
                 t = d["render_1_thread"]

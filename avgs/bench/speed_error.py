@@ -6,7 +6,8 @@ Every point is (latency per pose, MAG, ENV) on a scene's val clips:
 - AV-GS at vicinity 5/10/15/20/25 % (one model trained per setting);
 - AV-GS at point budgets: the 15 % model pruned exactly to the walkable area
   (:mod:`avgs.prune`), then random subsets of it (k at 15 % of the subset);
-- AV-GS at 0, 2 and 8 phase iterations of the synthesis (the 15 % model; 8 is the default);
+- AV-GS with each synthesis of :data:`SYNTHESES` (the 15 % model): the pose's filter, and the
+  predicted magnitudes with the filter's or the source's phase and 0, 2 or 8 phase iterations;
 - AV-GS in reduced precision (bfloat16 on the CPU, float16 on CUDA) where it runs;
 - the simulator that made the scene (pyroomacoustics, image-source order 0..10, with
   and without ray tracing), timed per pose (RIR + convolution of the clip).
@@ -36,8 +37,16 @@ from avgs.config import STFT, SynthesisConfig
 VICINITIES = (5.0, 10.0, 15.0, 20.0, 25.0)
 BUDGET_FRACTIONS = (0.5, 0.25, 0.1, 0.05)
 SIM_ORDERS = tuple(range(11))
-PHASE_ITERATIONS = (0, 2, 8)
-"Phase iterations of the synthesis compared on the 15 % model (the default's row is the vicinity row)."
+SYNTHESES = {
+    "filter": SynthesisConfig(method="filter"),
+    "filter phase": SynthesisConfig(),
+    "filter phase + 2 iterations": SynthesisConfig(phase_iterations=2),
+    "filter phase + 8 iterations": SynthesisConfig(phase_iterations=8),
+    "source phase": SynthesisConfig(phase="source"),
+    "source phase + 2 iterations": SynthesisConfig(phase="source", phase_iterations=2),
+    "source phase + 8 iterations": SynthesisConfig(phase="source", phase_iterations=8),
+}
+"Syntheses compared on the 15 % model (the default's row is the vicinity row)."
 
 
 # -- models --------------------------------------------------------------------------
@@ -277,15 +286,15 @@ def bench_scene(scene_dir, work: Path, *, iterations: int, n_points: int, repeat
         say(f"{scene.name}: {label}: MAG {s['MAG']:.3f}, {t.median_ms:.2f} ms, {row['ckpt_bytes'] / 1e6:.2f} MB")
     rows += budget_rows[1:]  # 'all points' is the vicinity row already
 
-    for iterations in PHASE_ITERATIONS:  # the synthesis: speed against error of the phase iterations
-        if iterations == SynthesisConfig().phase_iterations:
+    for label, synthesis in SYNTHESES.items():  # the synthesis: speed against error of each method
+        if synthesis == SynthesisConfig():
             continue  # the vicinity row already
-        r = SceneRenderer.load(models[ref_v], synthesis=SynthesisConfig(phase_iterations=iterations))
+        r = SceneRenderer.load(models[ref_v], synthesis=synthesis)
         s = score(RendererMethod(r), scene)
         t = renderer_latency(r, repeats)
-        rows.append({**base, "family": "AV-GS synthesis", "label": f"AV-GS {ref_v:g} % phase iterations {iterations}",
+        rows.append({**base, "family": "AV-GS synthesis", "label": f"AV-GS {ref_v:g} % {label}",
                      "latency_ms": t.median_ms, "p95_ms": t.p95_ms, **s})
-        say(f"{scene.name}: {iterations} phase iterations: MAG {s['MAG']:.3f}, {t.median_ms:.2f} ms")
+        say(f"{scene.name}: {label}: MAG {s['MAG']:.3f}, {t.median_ms:.2f} ms")
 
     r = SceneRenderer.load(models[ref_v])
     precisions = [("cpu", torch.bfloat16)] + ([("cuda", torch.float16), ("cuda", torch.float32)] if cuda else [])

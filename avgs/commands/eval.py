@@ -10,8 +10,7 @@ from __future__ import annotations
 import argparse
 
 from avgs.baselines import BASELINES
-from avgs.commands.flags import field_help
-from avgs.config import SynthesisConfig
+from avgs.commands.render import add_synthesis_flags
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,8 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", metavar="OUT.json", help="Also write the scores as JSON (atomically).")
     parser.add_argument("--split", choices=("val", "train"), default="val", help="Clips to score (default: val).")
     parser.add_argument("--device", default="cpu", help="Torch device for checkpoints (cpu or cuda).")
-    parser.add_argument("--phase-iterations", type=int, metavar="N",
-                        help="Checkpoints: " + field_help(SynthesisConfig, "phase_iterations") + f" Default {SynthesisConfig.phase_iterations}.")
+    add_synthesis_flags(parser, prefix="Checkpoints: ")
     parser.add_argument("--no-progress", action="store_true", help="Hide the progress bars.")
 
 

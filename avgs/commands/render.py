@@ -17,17 +17,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--input", required=True, metavar="mono.wav", help="Input audio, any length; stereo is down-mixed.")
     parser.add_argument("--output", required=True, metavar="out.wav", help="Binaural output (2 channels, float WAV).")
     parser.add_argument("--device", default="cpu", help="Torch device (cpu or cuda).")
-    parser.add_argument("--phase-iterations", type=int, metavar="N",
-                        help=field_help(SynthesisConfig, "phase_iterations") + f" Default {SynthesisConfig.phase_iterations}.")
+    add_synthesis_flags(parser)
+
+
+def add_synthesis_flags(parser: argparse.ArgumentParser, prefix: str = "") -> None:
+    """``--synthesis``, ``--phase`` and ``--phase-iterations``: the fields of :class:`SynthesisConfig`."""
+    d = SynthesisConfig()
+    parser.add_argument("--synthesis", choices=("filter", "spectrogram"), default=d.method,
+                        help=prefix + field_help(SynthesisConfig, "method") + f" Default {d.method}.")
+    parser.add_argument("--phase", choices=("filter", "source"), default=d.phase,
+                        help=prefix + field_help(SynthesisConfig, "phase") + f" Default {d.phase}.")
+    parser.add_argument("--phase-iterations", type=int, metavar="N", default=d.phase_iterations,
+                        help=prefix + field_help(SynthesisConfig, "phase_iterations") + f" Default {d.phase_iterations}.")
 
 
 def synthesis_of(args: argparse.Namespace) -> SynthesisConfig:
-    """The :class:`SynthesisConfig` that ``--phase-iterations`` asks for (defaults otherwise)."""
-    if args.phase_iterations is None:
-        return SynthesisConfig()
+    """The :class:`SynthesisConfig` of ``--synthesis``, ``--phase`` and ``--phase-iterations``."""
     if args.phase_iterations < 0:
         raise ValueError(f"--phase-iterations must be >= 0, got {args.phase_iterations}")
-    return SynthesisConfig(phase_iterations=args.phase_iterations)
+    return SynthesisConfig(method=args.synthesis, phase=args.phase, phase_iterations=args.phase_iterations)
 
 
 def run(args: argparse.Namespace) -> int:
