@@ -477,5 +477,15 @@ class SceneRenderer:
             impulse = self._impulse(m)
             return ConvolutionStream(impulse) if s.method == "filter" else BinauralStream(m.to(torch.float32), impulse, self.stft)
 
+    def move_stream(self, stream, listener, yaw: float, source=None) -> RenderResult:
+        """Switch a :meth:`stream` of this scene to another pose from its next block (crossfaded,
+        no click; safe from another thread than the one feeding it). Returns the new pose's
+        masks and ``impulse``, as :meth:`binaural_filter`."""
+        with self._lock, torch.inference_mode():
+            m, theta, lis, src = self._masks(listener, yaw, source)
+            impulse = self._impulse(m)
+            stream.set_pose(m.to(torch.float32), impulse)
+            return self._result(m, theta, lis, src, impulse=impulse)
+
     def __repr__(self) -> str:
         return f"SceneRenderer({self.name!r}: {len(self._points)} audio points, {self.sample_rate} Hz)"

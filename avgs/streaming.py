@@ -55,16 +55,10 @@ class BinauralStream:
     def __init__(self, masks: Masks, impulse: np.ndarray, stft: STFTConfig = STFT, block: int = 128):
         if stft.win_length != stft.n_fft:
             raise ValueError(f"streaming needs win_length == n_fft, got {stft.win_length} and {stft.n_fft}")
-        shapes = [tuple(masks.mixture.shape), tuple(masks.difference.shape)]
-        if masks.reverb is not None:
-            shapes += [tuple(masks.reverb.shape[::2]), (1, *masks.decay.shape)]
-        if any(shape != (1, stft.n_freq) for shape in shapes):
-            raise ValueError(f"a stream takes the masks of one pose, [1, {stft.n_freq}] for n_fft {stft.n_fft}; got {shapes}")
         self.stft = stft
-        self.masks = masks.to(torch.float64, "cpu")
+        self.masks = self._checked(masks)
         "The pose's masks in float64, on the CPU."
-        self.impulse = np.asarray(impulse, dtype=np.float32)
-        self._filter = ConvolutionStream(self.impulse, block)
+        self._filter = ConvolutionStream(np.asarray(impulse, dtype=np.float32), block)
         self._tail_state = None  # [1, F] float64 tensor: decayed power of the frames so far
         n, hop = stft.n_fft, stft.hop_length
         self._w = _hann(n)  # [n_fft]
@@ -83,6 +77,28 @@ class BinauralStream:
         self._started = False
         self._done = False
 
+    def _checked(self, masks: Masks) -> Masks:
+        shapes = [tuple(masks.mixture.shape), tuple(masks.difference.shape)]
+        if masks.reverb is not None:
+            shapes += [tuple(masks.reverb.shape[::2]), (1, *masks.decay.shape)]
+        n_freq = self.stft.n_freq
+        if any(shape != (1, n_freq) for shape in shapes):
+            raise ValueError(f"a stream takes the masks of one pose, [1, {n_freq}] for n_fft {self.stft.n_fft}; got {shapes}")
+        return masks.to(torch.float64, "cpu")
+
+    def set_pose(self, masks: Masks, impulse: np.ndarray) -> None:
+        """Go on with another pose of the same scene (e.g. from another thread, between blocks).
+
+        The filter switches at the next convolution block with a crossfade over it, the
+        magnitudes at the next STFT frame (whose overlap-add fades them in over one window).
+        The tail's power needs no reset: it depends on the source and the room, not the pose.
+        """
+        masks = self._checked(masks)
+        if (masks.decay is None) != (self.masks.decay is None):
+            raise ValueError("set_pose: the new masks must come from the same scene (with or without a tail)")
+        self._filter.convolver.set_impulse(np.asarray(impulse, dtype=np.float32))
+        self.masks = masks
+
     @property
     def latency(self) -> int:
         """Upper bound on how many samples the output lags the input."""
@@ -97,12 +113,13 @@ class BinauralStream:
         n, hop = self.stft.n_fft, self._hop
         starts = np.arange(t0, t1) * hop - self._x0  # [m] into self._x
         idx = starts[:, None] + np.arange(n)[None, :]  # [m, n_fft]
+        masks = self.masks  # one pose for these frames, whatever another thread sets meanwhile
         spec = np.fft.rfft(self._x[:, idx] * self._w, axis=-1)  # [3, m, F]
         mag_t = torch.from_numpy(np.ascontiguousarray(np.abs(spec[0]).T))[None]  # [1, F, m]
         power = None
-        if self.masks.reverb is not None:  # P(t) = w (P(t-1) + |S(t-1)|^2), carried from block to block
-            power, self._tail_state = tail_power_recursive(mag_t, self.masks.decay, self._tail_state)
-        _, s_l, s_r = ear_magnitudes(mag_t, self.masks, power)  # [1, F, m] each
+        if masks.reverb is not None:  # P(t) = w (P(t-1) + |S(t-1)|^2), carried from block to block
+            power, self._tail_state = tail_power_recursive(mag_t, masks.decay, self._tail_state)
+        _, s_l, s_r = ear_magnitudes(mag_t, masks, power)  # [1, F, m] each
         target = torch.cat([s_l, s_r]).numpy().transpose(0, 2, 1)  # [2, m, F]
         out = np.fft.irfft(target * unit_phase(spec[1:]), n=n, axis=-1) * self._w  # [2, m, n_fft]
         end = (t1 - 1) * hop + n - self._a0

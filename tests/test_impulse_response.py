@@ -157,3 +157,28 @@ def test_renderer_filter_is_what_render_convolves(tmp_path):
     spec = r.render((0.1, 0.2, 0.0), 30.0, x).binaural  # the default: predicted magnitudes with the filter's phase
     assert not np.allclose(got, spec, atol=1e-3)  # the two syntheses are different methods
     assert math.isclose(float(np.abs(got).max()), float(np.abs(spec).max()), rel_tol=0.5)  # of the same filter
+
+
+def test_a_stream_moved_to_another_pose_settles_on_that_poses_output():
+    from avgs.checkpoint import untrained_checkpoint
+    from avgs.inference import SceneRenderer
+
+    g = torch.Generator().manual_seed(0)
+    r = SceneRenderer(untrained_checkpoint(torch.rand(400, 3, generator=g) * 2 - 1, torch.tensor([0.2, 0.1, 0.0]), seed=1))
+    x = np.random.default_rng(3).standard_normal(30_000).astype(np.float32) * 0.3
+    a, b = ((0.1, 0.2, 0.0), 30.0), ((-0.5, 0.4, 0.0), 200.0)
+    moved, fresh_a, fresh_b = r.stream(*a), r.stream(*a), r.stream(*b)
+    out = {k: [] for k in ("moved", "a", "b")}
+    for i in range(0, x.size, 1000):
+        if i == 15_000:
+            r.move_stream(moved, *b)
+        for k, s in (("moved", moved), ("a", fresh_a), ("b", fresh_b)):
+            out[k].append(s.process(x[i : i + 1000]))
+    y = {k: np.concatenate(v, axis=1) for k, v in out.items()}
+    n = y["moved"].shape[1]
+    switch = 15_000 - moved.latency  # output before this was made before the move
+    assert np.allclose(y["moved"][:, :switch], y["a"][:, :switch], atol=1e-6)
+    settled = 15_000 + moved.latency + STFT.n_fft  # one block's crossfade and one window's overlap later
+    assert np.allclose(y["moved"][:, settled:n], y["b"][:, settled:n], atol=1e-5)
+    jump = np.abs(np.diff(y["moved"][:, switch - 1 : settled + 1], axis=1)).max()
+    assert jump < 4 * np.abs(np.diff(y["b"], axis=1)).max()  # no click: no step larger than the signal's own

@@ -118,6 +118,10 @@ class ConvolutionStream:
         """Upper bound on how many samples the output lags the input."""
         return self.convolver.block
 
+    def set_pose(self, masks, impulse: np.ndarray) -> None:
+        """Go on with another pose's response (``masks`` unused: the response is all a filter needs)."""
+        self.convolver.set_impulse(impulse)
+
     def process(self, x) -> np.ndarray:
         """Output ``[C, n]`` (n may be 0) for the next input samples ``x [m]``."""
         if self._done:
