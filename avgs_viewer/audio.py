@@ -1,18 +1,26 @@
-"""Looping binaural playback: clip loading, a click-free buffer swap, meters, the output stream.
+"""Live binaural playback: the looped mono clip streamed block by block through the pose's filter.
 
-One continuous output stream loops the current binaural render of the chosen mono clip.
-When the listener or source moves, the whole clip is rendered again for the new pose
-(time-invariant masks: the same filter for any length) and :meth:`LoopEngine.set_buffer`
-swaps it in with a short crossfade at the current play position, so playback never
-restarts, gaps or clicks. The engine is plain numpy: tests drive :meth:`LoopEngine.callback`
-directly with known signals; :class:`AudioOutput` connects it to ``sounddevice`` when a
-device exists and reports why not otherwise (no sound card on CI).
+A pose is a filter (B's masks are time-invariant): its binaural impulse response
+``[2, L]``. :class:`StreamEngine` reads the looped mono clip one audio block at a time
+and convolves it with the current filter (:class:`avgs.acoustics.convolution.BlockConvolver`,
+uniformly partitioned, no added latency). A new pose's filter is taken at the next block
+and crossfaded over it, so a move is heard one block after its filter is known, with no
+re-render of the clip, no gap and no click. Volume and pause ramp over one block.
+
+:class:`AudioOutput` runs the engine from the sound card's callback, or, where there is
+no sound card (CI, these machines), from :class:`SimulatedClock`, a thread that pulls
+blocks at the card's pace: the same path either way, so the benchmark and the tests
+measure what a user hears. Tests also pull blocks directly (:meth:`StreamEngine.render_block`).
 """
 
 from __future__ import annotations
 
 import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -60,166 +68,348 @@ def levels(binaural: np.ndarray) -> tuple[float, float, float]:
     return float(left), float(right), float(left - right)
 
 
-# ---------------------------------------------------------------------- engine
-class LoopEngine:
-    """Loops a binaural buffer [2, T]; swaps in new buffers with a crossfade; meters its output.
+# ---------------------------------------------------------------------- clip spectrum
+@dataclass(frozen=True)
+class ClipSpectrum:
+    """A clip's long-term power spectrum, to tell how loud a filter makes it without convolving it.
 
-    Thread-safe: :meth:`set_buffer` may be called from any thread; :meth:`callback` runs
-    on the audio thread. A buffer set while a crossfade is running waits for it to end
-    and is replaced by any newer one meanwhile (newest wins).
-
-    ``fade_seconds`` is the swap crossfade. ``curve`` "equal_power" (cos/sin gains:
-    constant power for uncorrelated material) or "linear" (gains sum to one: constant
-    amplitude when old and new are nearly the same signal, as two renders of one clip are).
-    Volume and play/pause changes ramp over one block, never step.
+    ``density`` [n // 2 + 1] is Welch's estimate (Hann segments of ``n`` samples, half
+    overlapping) on the bins of an ``n``-point FFT; ``mean_square`` the clip's mean square.
+    For a stationary clip, the mean square of ``h * clip`` is
+    ``mean_square * sum(w |H|^2 p) / sum(w p)`` (p: the density on H's bins, w: the one-sided
+    weights), which :meth:`output_power` returns per channel.
     """
 
-    def __init__(self, sample_rate: int, fade_seconds: float = 0.03, curve: str = "equal_power",
-                 peak_target: float = 0.5):
-        if curve not in ("equal_power", "linear"):
-            raise ValueError(f"crossfade curve must be 'equal_power' or 'linear', got {curve!r}")
+    density: np.ndarray
+    mean_square: float
+    n: int
+
+    @classmethod
+    def of(cls, mono: np.ndarray, n: int = 2048) -> "ClipSpectrum":
+        x = np.asarray(mono, dtype=np.float64)
+        n = int(min(n, 1 << max(1, int(np.floor(np.log2(max(len(x), 2)))))))
+        hop = n // 2
+        starts = range(0, max(1, len(x) - n + 1), hop)
+        window = np.hanning(n)
+        power = np.zeros(n // 2 + 1)
+        for s in starts:
+            seg = x[s:s + n]
+            if len(seg) < n:
+                seg = np.pad(seg, (0, n - len(seg)))
+            power += np.abs(np.fft.rfft(seg * window)) ** 2
+        return cls(density=power / max(1, len(starts)), mean_square=float(np.mean(np.square(x))) if len(x) else 0.0,
+                   n=n)
+
+    def output_power(self, impulse: np.ndarray) -> np.ndarray:
+        """[C] mean square of each channel of ``impulse [C, L]`` applied to the clip."""
+        h = np.asarray(impulse, dtype=np.float64)
+        m = max(self.n, 1 << int(np.ceil(np.log2(max(h.shape[-1], 2)))))
+        gain = np.abs(np.fft.rfft(h, m, axis=-1)) ** 2  # [C, m // 2 + 1]
+        density = np.interp(np.arange(m // 2 + 1) / m, np.arange(self.n // 2 + 1) / self.n, self.density)
+        w = np.full(m // 2 + 1, 2.0)
+        w[0] = w[-1] = 1.0
+        total = float(np.sum(w * density))
+        if total <= 0.0:
+            return np.zeros(h.shape[0])
+        return self.mean_square * (gain @ (w * density)) / total
+
+
+def filter_levels(impulse: np.ndarray, spectrum: ClipSpectrum, gain: float = 1.0) -> tuple[float, float, float]:
+    """(left dB, right dB, left - right dB) of the clip heard through ``impulse [2, L]`` times ``gain``."""
+    power = spectrum.output_power(impulse) * gain ** 2
+    left, right = (max(10.0 * np.log10(max(p, 1e-24)), SILENCE_DB) for p in power[:2])
+    return float(left), float(right), float(left - right)
+
+
+# ---------------------------------------------------------------------- engine
+_NONE = object()
+
+
+def _block_convolver():
+    from avgs.acoustics.convolution import BlockConvolver
+
+    return BlockConvolver
+
+
+class StreamEngine:
+    """Streams a looped mono clip through a binaural filter, one block at a time; meters its output.
+
+    Thread-safe: :meth:`set_filter`, :meth:`set_clip` and the controls may be called from
+    any thread; :meth:`render_block` / :meth:`callback` run on the audio thread.
+    A filter handed to :meth:`set_filter` is used from the next block on, crossfaded over
+    that block; several set between two blocks: the newest wins. Each filter carries a
+    ``tag`` (the viewer's pose number); :attr:`live_tag` is the tag of the filter in the
+    last block out, and :meth:`wait_live` tells when a tag's first block left the engine.
+
+    ``block`` is the audio block in samples (256 at 22050 Hz: 11.6 ms). The make-up gain
+    is fitted once per clip, on the first filter, so that the louder ear plays at
+    ``target_db`` dB RMS at full volume; it then stays, so level changes between poses
+    stay audible. Volume and play/pause changes ramp over one block.
+    """
+
+    def __init__(self, sample_rate: int, block: int = 256, target_db: float = -18.0,
+                 convolver: Callable | None = None):
+        if block < 16:
+            raise ValueError(f"audio block must be at least 16 samples, got {block}")
         self.sample_rate = int(sample_rate)
-        self.fade_len = max(1, int(round(fade_seconds * sample_rate)))
-        self.curve = curve
-        self.peak_target = float(peak_target)
+        self.block = int(block)
+        self.target_db = float(target_db)
+        self._convolver = convolver
         self._lock = threading.Lock()
-        self._current: np.ndarray | None = None   # [T, 2] float32
-        self._next: np.ndarray | None = None      # [T', 2] buffer being faded in
-        self._pending: np.ndarray | None = None   # [T'', 2] newest buffer waiting
-        self._fade_pos = 0
+        self._live_cond = threading.Condition()
+        self._clip: np.ndarray | None = None       # [T] float32 loop
+        self._next_clip: np.ndarray | None = None  # crossfaded in at the next block
+        self._spectrum: ClipSpectrum | None = None
         self._pos = 0
-        self._gain = 0.0            # gain applied at the end of the last block
+        self._conv = None
+        self._impulse: np.ndarray | None = None
+        self._pending = False
+        self._pending_tag = None
+        self._fifo = np.zeros((0, 2), dtype=np.float32)
+        self._live_at: OrderedDict = OrderedDict()  # tag -> perf_counter when its first block left
+        self._gain = 0.0             # volume x make-up gain at the end of the last block
         self.volume = 0.8
         self.playing = True
-        self.makeup_gain: float | None = None  # fixed per clip/scene so level changes stay audible
-        self.generation = 0          # buffers adopted by the audio thread (a fade started)
-        self.submitted = 0           # buffers handed to set_buffer
-        self.block_levels = (SILENCE_DB, SILENCE_DB)  # (left, right) dB of the last output block
+        self.makeup_gain: float | None = None
+        self.live_tag = None
+        self._fresh = _NONE
+        self.blocks = 0              # blocks rendered with sound (not paused)
+        self.filters_set = 0
+        self.block_levels = (SILENCE_DB, SILENCE_DB)  # (left, right) dB of the last block out
 
     # -- control (any thread)
     @property
-    def has_pending(self) -> bool:
-        """Whether a buffer handed to :meth:`set_buffer` waits to be adopted by the audio thread."""
-        with self._lock:
-            return self._pending is not None
+    def clip(self) -> np.ndarray | None:
+        """The looped mono clip [T] (the newest one set)."""
+        return self._next_clip if self._next_clip is not None else self._clip
 
-    def set_buffer(self, binaural: np.ndarray) -> None:
-        """Queue binaural [2, T] audio to be crossfaded in at the current play position."""
-        binaural = np.asarray(binaural, dtype=np.float32)
-        if binaural.ndim != 2 or binaural.shape[0] != 2 or binaural.shape[1] == 0:
-            raise ValueError(f"binaural buffer must be [2, T] with T > 0, got shape {binaural.shape}")
-        if not np.all(np.isfinite(binaural)):
-            raise ValueError("binaural buffer has non-finite samples")
+    @property
+    def spectrum(self) -> ClipSpectrum | None:
+        """The looped clip's long-term spectrum (:func:`filter_levels`)."""
+        return self._spectrum
+
+    @property
+    def impulse(self) -> np.ndarray | None:
+        """The newest filter set, [2, L] float32 (before make-up gain)."""
+        return self._impulse
+
+    @property
+    def has_pending(self) -> bool:
+        """Whether a filter set with :meth:`set_filter` has not been used by a block yet."""
         with self._lock:
-            if self.makeup_gain is None:
-                peak = float(np.abs(binaural).max())
-                self.makeup_gain = self.peak_target / peak if peak > 0 else 1.0
-            self._pending = np.ascontiguousarray((binaural * self.makeup_gain).T)  # [T, 2]
-            self.submitted += 1
+            return self._pending
+
+    def set_clip(self, mono: np.ndarray) -> None:
+        """Loop ``mono [T]`` (at :attr:`sample_rate`, already seamless); the old clip is crossfaded
+        into it over the next block, and the make-up gain is fitted again."""
+        mono = np.ascontiguousarray(mono, dtype=np.float32)
+        if mono.ndim != 1 or len(mono) == 0:
+            raise ValueError(f"clip must be mono [T] with T > 0, got shape {mono.shape}")
+        if not np.all(np.isfinite(mono)):
+            raise ValueError("clip has non-finite samples")
+        spectrum = ClipSpectrum.of(mono)
+        with self._lock:
+            if self._clip is None:
+                self._clip, self._pos = mono, 0
+            else:
+                self._next_clip = mono
+            self._spectrum = spectrum
+            self.makeup_gain = None
+            if self._impulse is not None:
+                self.makeup_gain = self._fit_gain(self._impulse)
+
+    def set_filter(self, impulse: np.ndarray, tag=None) -> None:
+        """Play through ``impulse [2, L]`` (left, right) from the next block on."""
+        h = np.ascontiguousarray(impulse, dtype=np.float32)
+        if h.ndim != 2 or h.shape[0] != 2 or h.shape[1] == 0:
+            raise ValueError(f"binaural filter must be [2, L] with L > 0, got shape {h.shape}")
+        if not np.all(np.isfinite(h)):
+            raise ValueError("binaural filter has non-finite taps")
+        with self._lock:
+            if self._conv is None:
+                cls = self._convolver or _block_convolver()
+                self._conv = cls(h, self.block)
+            else:
+                self._conv.set_impulse(h)
+            self._impulse = h
+            if self.makeup_gain is None and self._spectrum is not None:
+                self.makeup_gain = self._fit_gain(h)
+            self._pending, self._pending_tag = True, tag
+            self.filters_set += 1
 
     def reset_gain(self) -> None:
-        """Fit the make-up gain again on the next buffer (after a new clip or scene)."""
+        """Fit the make-up gain again on the next filter (a new scene)."""
         with self._lock:
             self.makeup_gain = None
 
-    @property
-    def position(self) -> int:
-        """Play position in samples within the current loop."""
-        return self._pos
+    def _fit_gain(self, h: np.ndarray) -> float:
+        loudest = float(np.max(self._spectrum.output_power(h)))
+        return float(10.0 ** (self.target_db / 20.0) / np.sqrt(loudest)) if loudest > 0 else 1.0
 
-    @property
-    def current(self) -> np.ndarray | None:
-        """The buffer playing now, [2, T] after make-up gain (None before the first)."""
-        cur = self._current
-        return None if cur is None else cur.T
+    def wait_live(self, tag, timeout: float = 10.0) -> float | None:
+        """The ``perf_counter`` time at which the first block made with filter ``tag`` left the
+        engine, waiting up to ``timeout`` s for it; None if it has not (yet)."""
+        deadline = time.perf_counter() + timeout
+        with self._live_cond:
+            while tag not in self._live_at:
+                left = deadline - time.perf_counter()
+                if left <= 0:
+                    return None
+                self._live_cond.wait(left)
+            return self._live_at[tag]
 
     # -- audio thread
-    def _fade_gains(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if self.curve == "linear":
-            return 1.0 - t, t
-        return np.cos(0.5 * np.pi * t), np.sin(0.5 * np.pi * t)
+    def _input(self, n: int) -> np.ndarray:
+        """The next ``n`` samples of the looped clip (a new clip crossfaded in). Under the lock."""
+        clip = self._clip
+        x = clip[(self._pos + np.arange(n)) % len(clip)]
+        self._pos = (self._pos + n) % len(clip)
+        if self._next_clip is not None:
+            new = self._next_clip
+            t = (np.arange(n) + 0.5) / n
+            x = x * np.cos(0.5 * np.pi * t) + new[np.arange(n) % len(new)] * np.sin(0.5 * np.pi * t)
+            self._clip, self._next_clip, self._pos = new, None, n % len(new)
+        return x.astype(np.float32, copy=False)
 
-    def render_block(self, frames: int) -> np.ndarray:
-        """The next ``frames`` output samples, [frames, 2] float32 (advances the engine)."""
+    def render_block(self) -> np.ndarray:
+        """The next :attr:`block` output samples, [block, 2] float32 (advances the engine)."""
+        n = self.block
+        target = float(self.volume) if self.playing else 0.0
+        out = np.zeros((n, 2), dtype=np.float32)
         with self._lock:
-            if self._next is None and self._pending is not None:
-                self._next, self._pending = self._pending, None
-                self._fade_pos = 0
-                self.generation += 1
-            cur, nxt, fade_pos = self._current, self._next, self._fade_pos
-        target = self.volume if self.playing else 0.0
-        out = np.zeros((frames, 2), dtype=np.float32)
-        if self._gain == 0.0 and target == 0.0:
-            self.block_levels = (SILENCE_DB, SILENCE_DB)
-            return out  # paused: the position holds
-        n = np.arange(frames)
-        if cur is not None:
-            out += cur[(self._pos + n) % len(cur)]
-        if nxt is not None:
-            t = np.clip((fade_pos + n + 1) / self.fade_len, 0.0, 1.0)[:, None]
-            g_old, g_new = self._fade_gains(t)
-            out *= g_old
-            out += g_new * nxt[(self._pos + n) % len(nxt)]
-            if fade_pos + frames >= self.fade_len:  # the fade is over: the new buffer plays
-                with self._lock:
-                    self._current, self._next = nxt, None
-                cur = nxt
-            else:
-                with self._lock:
-                    self._fade_pos = fade_pos + frames
-        ramp = np.linspace(self._gain, target, frames + 1, dtype=np.float32)[1:, None]
-        out *= ramp
+            if self._conv is None or self._clip is None or (self._gain == 0.0 and target == 0.0):
+                self.block_levels = (SILENCE_DB, SILENCE_DB)
+                return out  # nothing to play yet, or paused: the position holds
+            y = self._conv.process(self._input(n))  # [2, n]
+            tag, fresh = self._pending_tag, self._pending
+            self._pending = False
+            makeup = self.makeup_gain or 1.0
+        # Volume, pause and make-up gain (refitted for a new clip) all ramp over the block, never step.
+        ramp = np.linspace(self._gain, target * makeup, n + 1, dtype=np.float32)[1:]  # [n]
+        out[:] = (np.asarray(y, dtype=np.float32) * ramp).T
         np.clip(out, -1.0, 1.0, out=out)
-        self._gain = target
-        playing_buffer = cur if cur is not None else nxt  # the first buffer fades in from silence
-        if playing_buffer is not None:
-            self._pos = (self._pos + frames) % len(playing_buffer)
+        self._gain = target * makeup
+        self.blocks += 1
         left, right = rms_db(out, axis=0)
         self.block_levels = (float(left), float(right))
+        if fresh:
+            self._fresh = tag
+        self.live_tag = tag
         return out
 
-    def callback(self, outdata: np.ndarray, frames: int, time=None, status=None) -> None:
-        """``sounddevice`` output callback: fills ``outdata`` [frames, 2]."""
-        outdata[:] = self.render_block(frames)
+    def callback(self, outdata: np.ndarray, frames: int, time_info=None, status=None) -> None:
+        """``sounddevice`` output callback: fills ``outdata`` [frames, 2] (any ``frames``)."""
+        self._fresh = _NONE
+        if frames == self.block and len(self._fifo) == 0:
+            outdata[:] = self.render_block()
+        else:
+            parts = [self._fifo]
+            have = len(self._fifo)
+            while have < frames:
+                parts.append(self.render_block())
+                have += self.block
+            buf = np.concatenate(parts)
+            outdata[:] = buf[:frames]
+            self._fifo = buf[frames:]
+        if self._fresh is not _NONE:  # a new filter's first block has left the engine
+            t = time.perf_counter()
+            with self._live_cond:
+                self._live_at[self._fresh] = t
+                while len(self._live_at) > 512:
+                    self._live_at.popitem(last=False)
+                self._live_cond.notify_all()
+
+
+
+class SimulatedClock:
+    """A sound card's clock where there is none: a thread that calls ``callback(outdata, block)``
+    every ``block / sample_rate`` seconds (absolute deadlines; after a stall it goes on from
+    now rather than catching up in a burst)."""
+
+    def __init__(self, callback: Callable, sample_rate: int, block: int, name: str = "avgs-audio-clock"):
+        self._callback = callback
+        self.period = block / float(sample_rate)
+        self.block = int(block)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        out = np.zeros((self.block, 2), dtype=np.float32)
+        next_t = time.perf_counter()
+        while not self._stop.is_set():
+            self._callback(out, self.block, None, None)
+            next_t += self.period
+            wait = next_t - time.perf_counter()
+            if wait < -self.period:
+                next_t = time.perf_counter()
+            elif wait > 0:
+                time.sleep(wait)  # lighter than an Event wait; close() waits at most one period
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
+            self._thread.join(5)
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
 
 
 class AudioOutput:
-    """One continuous ``sounddevice`` output stream playing a :class:`LoopEngine`.
+    """Runs a :class:`StreamEngine`: from a ``sounddevice`` output stream when there is a sound
+    card, else from a :class:`SimulatedClock` (``device=False`` forces the clock).
 
-    ``start()`` returns None when playing, or a one-line reason when there is no usable
-    audio device (sounddevice or PortAudio missing, no sound card); the rest of the
-    viewer keeps working either way.
+    ``start()`` returns None when a sound card plays, or a one-line reason why not; the
+    engine runs either way, so meters, benchmark and tests see the same blocks.
     """
 
-    def __init__(self, engine: LoopEngine, blocksize: int = 512):
+    def __init__(self, engine: StreamEngine, device: bool = True):
         self.engine = engine
-        self.blocksize = int(blocksize)
+        self.blocksize = engine.block
+        self._use_device = device
         self._stream = None
+        self._clock: SimulatedClock | None = None
         self.message: str | None = None
 
     @property
     def available(self) -> bool:
+        """Whether a sound card plays the engine."""
         return self._stream is not None
 
+    @property
+    def running(self) -> bool:
+        """Whether the engine is being pulled (by a sound card or the simulated clock)."""
+        return self._stream is not None or (self._clock is not None and self._clock.alive)
+
     def start(self) -> str | None:
+        self.message = self._open_device() if self._use_device else "Audio output off"
+        if self.message is not None:
+            self._clock = SimulatedClock(self.engine.callback, self.engine.sample_rate, self.engine.block)
+            self._clock.start()
+        return self.message
+
+    def _open_device(self) -> str | None:
         try:
             import sounddevice as sd
         except (ImportError, OSError) as exc:  # OSError: the PortAudio library is missing
-            self.message = f"No audio output: sounddevice unavailable ({exc})"
-            return self.message
+            return f"No audio output: sounddevice unavailable ({exc})"
         try:
             stream = sd.OutputStream(samplerate=self.engine.sample_rate, channels=2, dtype="float32",
-                                     blocksize=self.blocksize, callback=self.engine.callback)
+                                     blocksize=self.blocksize, latency="low", callback=self.engine.callback)
             stream.start()
         except (sd.PortAudioError, ValueError, OSError) as exc:
-            self.message = f"No audio device: {str(exc).splitlines()[0]}"
-            return self.message
+            return f"No audio device: {str(exc).splitlines()[0]}"
         self._stream = stream
-        self.message = None
         return None
 
     def close(self) -> None:
         stream, self._stream = self._stream, None
+        clock, self._clock = self._clock, None
+        if clock is not None:
+            clock.close()
         if stream is not None:
             try:
                 stream.stop()

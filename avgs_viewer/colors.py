@@ -21,7 +21,10 @@ VICINITY_COLOURS = np.array([
     [225, 40, 200],    # both: magenta
 ], dtype=np.uint8)
 VICINITY_NAMES = ("neither", "listener's vicinity", "source's vicinity", "both vicinities")
-LISTENER_COLOUR = (0.15, 0.35, 1.00)   # sphere colours, float RGB for VTK
+# Sphere colours, float RGB for VTK. No colour can differ from every point colour (alpha and
+# G's RGB take any), so the spheres also differ by shape: shaded, drawn over the points and
+# ringed white then black (scene_view.HALO), which shows on any background.
+LISTENER_COLOUR = (0.15, 0.35, 1.00)
 SOURCE_COLOUR = (1.00, 0.88, 0.05)
 NO_RGB_COLOUR = np.array([180, 180, 180], dtype=np.uint8)
 

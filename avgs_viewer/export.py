@@ -7,12 +7,61 @@ is written atomically (a temporary file in the target folder, then ``os.replace`
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
 from avgs import atomic
+
+MAX_SCALE = 8
+MIN_SIZE, MAX_SIZE = 64, 8192  # window pixels before scaling
+MAX_PIXELS = 16384  # a side after scaling (rendered in tiles); 16384 x 16384 RGBA is already 1 GiB
+
+
+def check_picture_size(width: Any, height: Any, scale: Any = 1, names=("picture size", "screenshot scale")
+                       ) -> tuple[int, int, int]:
+    """(width, height, scale) as whole numbers, or one ValueError saying what is allowed
+    (``names``: how the error calls the size and the scale, e.g. the command line's flags)."""
+    def whole(v: Any) -> int | None:
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            return None
+        return int(f) if np.isfinite(f) and f == int(f) else None
+
+    w, h, s = whole(width), whole(height), whole(scale)
+    if w is None or h is None or not (MIN_SIZE <= w <= MAX_SIZE and MIN_SIZE <= h <= MAX_SIZE):
+        raise ValueError(f"{names[0]} must be two whole numbers of pixels from {MIN_SIZE} to {MAX_SIZE} "
+                         f"(width height), got {width} {height}")
+    if s is None or not 1 <= s <= MAX_SCALE:
+        raise ValueError(f"{names[1]} must be a whole number from 1 to {MAX_SCALE}, got {scale}")
+    if max(w, h) * s > MAX_PIXELS:
+        raise ValueError(f"a {w} x {h} picture at scale {s} is {w * s} x {h * s} pixels; at most {MAX_PIXELS} "
+                         f"a side: lower the {names[0]} or the {names[1]}")
+    return w, h, s
+
+
+@contextlib.contextmanager
+def annotated(view: Any, legend: bool = True, caption: bool = False) -> Iterator[Any]:
+    """The view with its legend and/or a caption naming the pose while the block runs (for a
+    picture), each sized to the window and in a corner that covers no handle; removed after."""
+    if view is None:  # no scene yet: a picture of the empty view
+        yield view
+        return
+    try:
+        if legend:
+            view.show_legend()
+        if caption:
+            view.show_caption()
+        yield view
+    finally:
+        if caption:
+            view.hide_caption()
+        if legend:
+            view.hide_legend()
+        view.plotter.render()
 
 
 def write_wav(path: str | Path, binaural: np.ndarray, sample_rate: int, inputs=()) -> Path:
@@ -32,9 +81,8 @@ def write_screenshot(plotter: Any, path: str | Path, scale: int = 1, transparent
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"screenshot must be a .png file, got {path}")
-    scale = int(scale)
-    if not 1 <= scale <= 8:
-        raise ValueError(f"screenshot scale must be an integer from 1 to 8, got {scale}")
+    size = plotter.render_window.GetSize()
+    _, _, scale = check_picture_size(max(size[0], MIN_SIZE), max(size[1], MIN_SIZE), scale)
     atomic.check_output(path, inputs=inputs, what="screenshot")
     with atomic.atomic_path(path, make_parents=False) as tmp:
         plotter.screenshot(str(tmp), transparent_background=bool(transparent), scale=scale, return_img=False)
@@ -44,22 +92,31 @@ def write_screenshot(plotter: Any, path: str | Path, scale: int = 1, transparent
 def export_headless(renderer: Any, *, listener, yaw: float, source=None, screenshot: str | Path | None = None,
                     audio: str | Path | None = None, clip: np.ndarray | None = None, scale: int = 1,
                     transparent: bool = False, window_size=(1024, 768), colour_mode: str = "vicinity",
-                    legend: bool = True):
+                    legend: bool = True, caption: bool = False, map_mode: str = "off"):
     """Render one pose with no window: a PNG of the point pattern and/or the binaural WAV.
 
     ``renderer`` is an ``avgs.SceneRenderer``; positions are world coordinates, ``yaw``
-    degrees. ``clip`` is the mono signal to binauralise (default: the bundled demo clip,
-    else one second of a test tone). Returns the ``RenderResult``.
+    degrees (kept inside the room as in the window). ``clip`` is the mono signal to
+    binauralise (default: the bundled demo clip, else one second of a test tone).
+    ``legend`` and ``caption`` (the pose) are drawn where they cover no handle; ``map_mode``
+    ``"level"`` or ``"ild"`` adds the propagation map on the floor. The WAV is what the
+    explorer plays: the clip through the pose's filter. Returns the ``RenderResult``.
     """
+    from avgs.config import SynthesisConfig
+
     from .state import ViewerState
 
+    if screenshot is not None:
+        check_picture_size(*window_size, scale)
     state = ViewerState(renderer.bounds, renderer.source if source is None else source,
-                        listener=listener, yaw=yaw, has_rgb=renderer.gaussians is not None)
+                        listener=listener, yaw=yaw, has_rgb=renderer.gaussians is not None,
+                        outline=renderer.outline)
     state.set_colour_mode(colour_mode)
     if clip is None:
         clip = default_clip(renderer.sample_rate)
     pose = state.pose
-    result = renderer.render(listener=pose.listener, yaw=pose.yaw, mono=clip, source=pose.source)
+    result = renderer.render(listener=pose.listener, yaw=pose.yaw, mono=clip, source=pose.source,
+                             synthesis=SynthesisConfig(method="filter"))
     if screenshot is not None:
         import pyvista as pv
 
@@ -67,9 +124,18 @@ def export_headless(renderer: Any, *, listener, yaw: float, source=None, screens
 
         plotter = pv.Plotter(off_screen=True, window_size=list(window_size))
         try:
-            view = SceneView(plotter, renderer, state, legend=legend)
+            view = SceneView(plotter, renderer, state)
             view.set_vicinity(result.listener_vicinity, result.source_vicinity)
-            write_screenshot(plotter, screenshot, scale=scale, transparent=transparent)
+            floor_map = None
+            if map_mode != "off":
+                from .propagation_view import PropagationView
+
+                floor_map = PropagationView(plotter, renderer, state, mode=map_mode)
+                floor_map.draw_now()
+            with annotated(view, legend=legend, caption=caption):
+                write_screenshot(plotter, screenshot, scale=scale, transparent=transparent)
+            if floor_map is not None:
+                floor_map.close()
             view.close()
         finally:
             plotter.close()

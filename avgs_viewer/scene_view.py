@@ -4,9 +4,15 @@ The same :class:`SceneView` draws into the window's ``pyvistaqt.QtInteractor`` a
 plain ``pv.Plotter(off_screen=True)`` (EGL, no X server) for the command-line screenshot
 and the rendering tests. It shows G_a's points (a deterministic subset when there are
 many: Mesa under Xvfb manages ~13 FPS at 50k points) coloured by the state's colour mode,
-hides those above the slice height, and draws the room outline, a blue listener sphere
-with a facing arrow and a yellow source sphere. While the camera or a handle moves the
+hides those above the slice height, and draws the room outline, an axes marker, a blue
+listener sphere with a facing arrow and a yellow source sphere. The handles live in a
+second VTK layer on top of the points, ringed white and black, so no point hides them
+and they stand out from every colour mode. While the camera or a handle moves the
 points are drawn as plain squares; when idle, as shaded spheres.
+
+Pictures can carry a legend and a caption with the pose, sized to the picture and put in
+a corner where they cover no handle. VTK's own keys (``3`` stereo, ``w`` wireframe, ``+``
+point size, ...) are switched off: the window's menus hold every key.
 
 No Qt here; :class:`VtkProjector` gives the drag logic (``avgs_viewer.drag``) the camera.
 """
@@ -19,10 +25,15 @@ import numpy as np
 import pyvista as pv
 
 from . import colors
+from .drag import pixel_radius
 from .state import ColourMode, ViewerState
 
 BACKGROUND = (22, 24, 30)
 POINT_SIZE = 6.0
+HALO = ((1.16, (1.0, 1.0, 1.0)), (1.36, (0.02, 0.02, 0.03)))
+"Rings around each handle: (radius as a multiple of the handle's, colour), inner first."
+CORNERS = ("upper right", "upper left", "lower right", "lower left")
+AXES_VIEWPORT = (0.0, 0.0, 0.16, 0.16)  # the axes marker's corner (normalised viewport)
 
 
 class VtkProjector:
@@ -59,16 +70,39 @@ def _outline_mesh(outline: np.ndarray) -> pv.PolyData:
     return pv.PolyData(outline.reshape(-1, 3), lines=lines)
 
 
+def disable_vtk_keys(plotter: Any) -> None:
+    """Switch off the keys VTK and PyVista bind by themselves (``3`` anaglyph stereo, ``w`` / ``s``
+    wireframe / surface, ``+`` / ``-`` point size, ``q`` / ``e`` quit, ``f`` fly to, ``p`` pick,
+    ``v`` isometric, ``Up`` / ``Down`` zoom, ...). Mouse interaction is untouched."""
+    iren = getattr(plotter, "iren", None)
+    if iren is None:  # an off-screen plotter has no interactor
+        return
+    iren.clear_key_event_callbacks()              # PyVista's own key table
+    iren.interactor.RemoveObservers("CharEvent")  # the interactor style's OnChar
+
+
+def _box_overlaps(box: tuple[float, float, float, float], circles: list[tuple[np.ndarray, float]]) -> float:
+    """How deep the worst circle (centre [2] px, radius px) reaches into box (x0, y0, x1, y1); 0 when none."""
+    x0, y0, x1, y1 = box
+    worst = 0.0
+    for c, r in circles:
+        dx = max(x0 - c[0], 0.0, c[0] - x1)
+        dy = max(y0 - c[1], 0.0, c[1] - y1)
+        worst = max(worst, r - float(np.hypot(dx, dy)))
+    return worst
+
+
 class SceneView:
     """Builds and updates the scene's actors in ``plotter`` from ``scene`` and ``state``.
 
     ``scene`` is an ``avgs.SceneRenderer`` (only its public ``points``, ``alpha``,
     ``gaussians``, ``outline`` and ``bounds`` are read). ``max_points`` caps the drawn
-    points (a fixed random subset, seed 0).
+    points (a fixed random subset, seed 0). ``legend`` shows the colour legend in the 3D
+    view (for exported pictures), ``axes`` an axes marker in the lower left corner.
     """
 
     def __init__(self, plotter: pv.Plotter, scene: Any, state: ViewerState, max_points: int = 40_000,
-                 legend: bool = False):
+                 legend: bool = False, axes: bool = True):
         self.plotter = plotter
         self.state = state
         points = np.asarray(scene.points, dtype=np.float64)  # [N, 3]
@@ -93,29 +127,32 @@ class SceneView:
             self._gauss_rgb = colors.rgb_from_gaussians(self.points, np.asarray(means), np.asarray(rgb))
         self.labels = np.zeros(len(self.drawn), dtype=np.int8)  # vicinity labels of drawn points
 
+        disable_vtk_keys(plotter)
         plotter.set_background([c / 255 for c in BACKGROUND])
         self._points_actor = None
         self._cloud: pv.PolyData | None = None
         self._legend_shown = False
+        self.legend_corner: str | None = None
+        self.caption_corner: str | None = None
+        self._caption = None
+        self._legend_box = self._caption_box = None
+        self.overlay = None
         self._refresh_points()
         if scene.outline is not None:
             plotter.add_mesh(_outline_mesh(scene.outline), color=(0.75, 0.75, 0.8), line_width=2,
                              lighting=False, name="outline", pickable=False, reset_camera=False)
-        r = self.handle_radius
-        self._listener_actor = plotter.add_mesh(pv.Sphere(radius=r, theta_resolution=24, phi_resolution=24),
-                                                color=colors.LISTENER_COLOUR, smooth_shading=True,
-                                                name="listener", reset_camera=False)
-        self._arrow_actor = plotter.add_mesh(
-            pv.Arrow(start=(0, 0, 0), direction=(1, 0, 0), scale=4.0 * r, tip_length=0.3,
-                     tip_radius=0.14, shaft_radius=0.05),
-            color=colors.LISTENER_COLOUR, name="facing", reset_camera=False)
-        self._source_actor = plotter.add_mesh(pv.Sphere(radius=r, theta_resolution=24, phi_resolution=24),
-                                              color=colors.SOURCE_COLOUR, smooth_shading=True,
-                                              name="source", reset_camera=False)
-        if legend:
-            self.show_legend()
+        if axes:
+            plotter.add_axes(interactive=False, line_width=2, viewport=AXES_VIEWPORT)
+        self._build_handles()
+        self._first_person = False
         self._place_handles()
         self.camera_home()
+        self._camera_observer = None
+        if getattr(plotter, "iren", None) is not None:  # a camera orbit / pan / zoom by the mouse
+            self._camera_observer = plotter.iren.interactor.AddObserver(
+                "StartInteractionEvent", self._camera_moved_by_mouse)
+        if legend:
+            self.show_legend()
 
         ev = state.events
         self._subscriptions = [
@@ -125,6 +162,75 @@ class SceneView:
         ]
         for event, cb in self._subscriptions:
             event.connect(cb)
+
+    # ------------------------------------------------------------------ handles
+    def _build_handles(self) -> None:
+        """Spheres, facing arrow and their rings in a renderer of their own, drawn after the points
+        with a cleared depth buffer: always visible, however many points lie in front."""
+        from vtkmodules.vtkRenderingCore import vtkRenderer
+
+        main = self.plotter.renderer
+        overlay = vtkRenderer()
+        overlay.SetLayer(1)
+        overlay.SetInteractive(False)  # mouse events go to the main renderer (camera, picking)
+        overlay.SetViewport(*main.GetViewport())
+        overlay.SetActiveCamera(main.GetActiveCamera())
+        ren_win = self.plotter.render_window
+        ren_win.SetNumberOfLayers(max(2, ren_win.GetNumberOfLayers()))
+        ren_win.AddRenderer(overlay)
+        # Not an observer re-syncing the camera before each frame: the tiled rendering of a
+        # scaled screenshot swaps cameras itself, and re-syncing inside it crashes VTK.
+        self.overlay = overlay
+
+        r = self.handle_radius
+        length = 4.0 * r
+
+        def add(mesh: pv.PolyData, colour, *, shaded: bool = True, ring: bool = False) -> pv.Actor:
+            actor = pv.Actor(mapper=pv.DataSetMapper(mesh))
+            prop = actor.prop
+            prop.color = colour
+            if ring:  # only the far side of a larger shell shows: a ring around the handle
+                prop.culling = "front"
+                prop.lighting = False
+            elif shaded:
+                prop.interpolation = "phong"
+                prop.specular, prop.specular_power = 0.3, 20.0
+            actor.SetPickable(False)
+            overlay.AddActor(actor)
+            return actor
+
+        def sphere(radius: float) -> pv.PolyData:
+            return pv.Sphere(radius=radius, theta_resolution=32, phi_resolution=32)
+
+        def arrow(grow: float) -> pv.PolyData:
+            # A facing arrow (or its ring, ``grow`` world units fatter all round) along +x from the centre.
+            size = length + 2 * grow
+            return pv.Arrow(start=(-grow, 0, 0), direction=(1, 0, 0), scale=size,
+                            tip_length=(0.3 * length + 1.5 * grow) / size,
+                            tip_radius=(0.14 * length + grow) / size, shaft_radius=(0.05 * length + grow) / size)
+
+        self._listener_parts, self._source_parts, self._facing_parts = [], [], []
+        for scale, colour in reversed(HALO):
+            self._listener_parts.append(add(sphere(scale * r), colour, ring=True))
+            self._source_parts.append(add(sphere(scale * r), colour, ring=True))
+        self._facing_parts.append(add(arrow(0.12 * r), HALO[-1][1], ring=True))
+        self._facing_parts.append(add(arrow(0.0), colors.LISTENER_COLOUR))
+        self._listener_actor = add(sphere(r), colors.LISTENER_COLOUR)
+        self._source_actor = add(sphere(r), colors.SOURCE_COLOUR)
+        self._listener_parts.append(self._listener_actor)
+        self._source_parts.append(self._source_actor)
+        self._arrow_actor = self._facing_parts[-1]
+
+    def handle_circles(self, margin: float = 4.0) -> list[tuple[np.ndarray, float]]:
+        """Where the handles are on screen: (centre [2] display px, radius px incl. rings) for the
+        listener, the source and the arrow's tip."""
+        proj = self.projector()
+        r = self.handle_radius * HALO[-1][0]
+        out = []
+        tip = self.state.listener + 4.0 * self.handle_radius * self.state.facing
+        for centre, radius in ((self.state.listener, r), (self.state.source, r), (tip, 0.5 * r)):
+            out.append((proj.to_display(centre), pixel_radius(proj, centre, radius) + margin))
+        return out
 
     # ------------------------------------------------------------------ public
     def set_vicinity(self, listener_idx: np.ndarray, source_idx: np.ndarray) -> None:
@@ -155,23 +261,144 @@ class SceneView:
             return colors.rgb_legend()
         return colors.vicinity_legend()
 
+    def _window_pixels(self) -> tuple[int, int]:
+        w, h = self.plotter.render_window.GetSize()
+        return max(int(w), 1), max(int(h), 1)
+
+    def _occupied(self) -> list[tuple[float, float, float, float]]:
+        """Boxes (display px) that an annotation must not cover: other renderers drawn in
+        part of the window (the axes marker, an inset view), with a text line of room above
+        them for their titles, and the legend or caption already shown."""
+        w, h = self._window_pixels()
+        boxes = []
+        renderers = self.plotter.render_window.GetRenderers()
+        renderers.InitTraversal()
+        for _ in range(renderers.GetNumberOfItems()):
+            ren = renderers.GetNextItem()
+            x0, y0, x1, y1 = ren.GetViewport()
+            if ren is self.overlay or (x1 - x0) * (y1 - y0) > 0.5:
+                continue  # the handles' layer, the main view
+            boxes.append((x0 * w, y0 * h, x1 * w, y1 * h + max(16.0, 0.035 * h)))
+        for box in (self._legend_box, self._caption_box):
+            if box is not None:
+                boxes.append(box)
+        return boxes
+
+    def _free_corner(self, size_px: tuple[float, float]) -> tuple[str, tuple]:
+        """Where to put a box of ``size_px`` (display px): the first corner of CORNERS, moved
+        clear of whatever :meth:`_occupied` holds there, that covers no handle; else the place
+        that covers least. Returns (corner, box (x0, y0, x1, y1))."""
+        render_now = getattr(self.plotter, "render_now", self.plotter.render)
+        render_now()  # the camera's aspect must be the window's before projecting
+        w, h = self._window_pixels()
+        pad = max(4.0, 0.012 * h)
+        bw, bh = size_px
+        circles = self.handle_circles()
+        occupied = self._occupied()
+        best = None
+        for corner in CORNERS:
+            top, right = corner.startswith("upper"), corner.endswith("right")
+            x0 = w - pad - bw if right else pad
+            ys = [h - pad - bh if top else pad]
+            for o in occupied:  # also just past each thing in that corner
+                if o[0] < x0 + bw and x0 < o[2]:
+                    ys.append(o[1] - pad - bh if top else o[3] + pad)
+            for y0 in ys:
+                box = (x0, y0, x0 + bw, y0 + bh)
+                cost = _box_overlaps(box, circles)
+                for o in occupied:
+                    overlap = max(0.0, min(box[2], o[2]) - max(box[0], o[0])) * max(0.0, min(box[3], o[3]) - max(box[1], o[1]))
+                    cost += 1000.0 * overlap / (bw * bh)
+                cost += 1000.0 * (max(0.0, -y0) + max(0.0, y0 + bh - h)) / bh  # off the picture
+                if best is None or cost < best[0]:
+                    best = (cost, corner, box)
+                if cost <= 0:
+                    return corner, box
+        return best[1], best[2]
+
     def show_legend(self) -> None:
-        """A legend of the colour mode inside the 3D view (used for exported pictures)."""
+        """The colour mode's legend inside the 3D view, sized to the window, in a corner that
+        covers neither handle (as ``legend_corner``)."""
         rows = [[text, [c / 255 for c in colour]] for text, colour in self.legend_rows()]
-        rows += [["listener", list(colors.LISTENER_COLOUR)], ["source", list(colors.SOURCE_COLOUR)]]
-        # VTK fits the text to the box: size the box by the longest label so no row is cut.
+        rows += [["listener (arrow: facing)", list(colors.LISTENER_COLOUR)], ["source", list(colors.SOURCE_COLOUR)]]
+        self.hide_legend()
+        w, h = self._window_pixels()
+        row = float(np.clip(0.028 * h, 11.0, 26.0))  # pixels per row
         longest = max(len(text) for text, _ in rows)
-        size = (min(0.6, 0.05 + 0.0125 * longest), min(0.4, 0.045 * len(rows)))
+        size_px = (min(0.6 * w, row * (1.8 + 0.55 * longest)), min(0.6 * h, row * len(rows) + 0.6 * row))
+        corner, box = self._free_corner(size_px)
+        size = (size_px[0] / w, size_px[1] / h)
         legend = self.plotter.add_legend(rows, bcolor=[c / 255 for c in BACKGROUND], size=size,
-                                         loc="upper right", name="legend", face="circle")
-        legend.SetPosition(0.98 - size[0], 0.98 - size[1])  # flush with the top right corner
+                                         loc=corner, name="legend", face="circle")
+        legend.SetPosition(box[0] / w, box[1] / h)
         legend.SetPosition2(*size)
         self._legend_shown = True
+        self.legend_corner, self._legend_box = corner, box
+
+    def hide_legend(self) -> None:
+        if self._legend_shown:
+            self.plotter.remove_legend(render=False)
+        self._legend_shown = False
+        self.legend_corner = self._legend_box = None
+
+    def caption_text(self) -> str:
+        """Two lines naming the pose (x, y, z; yaw in degrees), as drawn by :meth:`show_caption`."""
+        def xyz(p):
+            return "(" + ", ".join(f"{v:.2f}" for v in p) + ")"
+        return (f"listener {xyz(self.state.listener)}  yaw {self.state.yaw:.0f}\N{DEGREE SIGN}\n"
+                f"source   {xyz(self.state.source)}")
+
+    def show_caption(self) -> None:
+        """The pose as a caption in a free corner (``caption_corner``), sized to the window."""
+        from vtkmodules.vtkRenderingCore import vtkTextActor
+
+        self.hide_caption()
+        text = self.caption_text()
+        w, h = self._window_pixels()
+        font = int(round(float(np.clip(0.02 * h, 10.0, 18.0))))
+        lines = text.split("\n")
+        size_px = (0.62 * font * max(len(line) for line in lines) + font, 1.25 * font * len(lines) + 0.6 * font)
+        corner, box = self._free_corner(size_px)
+        actor = vtkTextActor()
+        actor.SetInput(text)
+        tp = actor.GetTextProperty()
+        tp.SetFontFamilyToCourier()
+        tp.SetFontSize(font)
+        tp.SetColor(0.92, 0.92, 0.95)
+        tp.SetBackgroundColor(*[c / 255 for c in BACKGROUND])
+        tp.SetBackgroundOpacity(0.85)
+        tp.SetVerticalJustificationToBottom()
+        coord = actor.GetPositionCoordinate()
+        coord.SetCoordinateSystemToNormalizedViewport()
+        coord.SetValue((box[0] + 0.5 * font) / w, (box[1] + 0.3 * font) / h)
+        self.plotter.renderer.AddViewProp(actor)
+        self._caption = actor
+        self.caption_corner, self._caption_box = corner, box
+
+    def hide_caption(self) -> None:
+        if self._caption is not None:
+            self.plotter.renderer.RemoveViewProp(self._caption)
+        self._caption = None
+        self.caption_corner = self._caption_box = None
 
     @property
     def visible(self) -> np.ndarray:
         """[n_drawn] bool: drawn points below the slice height."""
         return self.points[:, 2] <= self.state.slice_height
+
+    # ------------------------------------------------------------------ camera
+    def _look(self, position, focal, up=(0.0, 0.0, 1.0), view_angle: float = 30.0, fit: bool = True) -> None:
+        self._set_first_person(False)
+        camera = self.plotter.camera
+        if self.overlay.GetActiveCamera() is not camera:  # PyVista gave the view a new camera
+            self.overlay.SetActiveCamera(camera)
+        camera.view_angle = view_angle
+        self.plotter.camera_position = [tuple(map(float, position)), tuple(map(float, focal)), tuple(up)]
+        if fit:
+            lo, hi = self.bounds
+            self.plotter.reset_camera(bounds=[lo[0], hi[0], lo[1], hi[1], lo[2], min(hi[2], self.state.slice_height)])
+        else:
+            self.plotter.renderer.ResetCameraClippingRange()
 
     def camera_home(self) -> None:
         """A three-quarter view from above one corner, fitted to the scene (as the paper's figures)."""
@@ -181,8 +408,40 @@ class SceneView:
         direction = np.array([-0.45, -1.0, 1.05])
         direction /= np.linalg.norm(direction)
         diag = float(np.linalg.norm(hi - lo)) or 1.0
-        self.plotter.camera_position = [tuple(centre + 2.0 * diag * direction), tuple(centre), (0, 0, 1)]
-        self.plotter.reset_camera(bounds=[lo[0], hi[0], lo[1], hi[1], lo[2], min(hi[2], self.state.slice_height)])
+        self._look(centre + 2.0 * diag * direction, centre)
+
+    def camera_top(self) -> None:
+        """Straight down onto the floor plan, +y up the screen."""
+        lo, hi = self.bounds
+        centre = 0.5 * (lo + hi)
+        self._look(centre + np.array([0.0, 0.0, 2.0 * float(np.linalg.norm(hi - lo) or 1.0)]), centre, up=(0, 1, 0))
+
+    def camera_front(self) -> None:
+        """From the -y side, level, +z up: the room as an elevation."""
+        lo, hi = self.bounds
+        centre = 0.5 * (lo + hi)
+        self._look(centre - np.array([0.0, 2.0 * float(np.linalg.norm(hi - lo) or 1.0), 0.0]), centre)
+
+    def camera_listener(self) -> None:
+        """What the listener faces: the camera at its head, looking along its yaw (wide angle).
+        The listener's own sphere and arrow hide meanwhile; the camera follows the listener as
+        it turns or is moved, until the camera is moved by the mouse or another preset."""
+        self._look(self.state.listener, self.state.listener + self.state.facing, view_angle=70.0, fit=False)
+        self._set_first_person(True)
+
+    @property
+    def first_person(self) -> bool:
+        """True while the camera is the listener's (``camera_listener``)."""
+        return self._first_person
+
+    def _set_first_person(self, on: bool) -> None:
+        self._first_person = on
+        for actor in self._listener_parts + self._facing_parts:
+            actor.SetVisibility(not on)
+
+    def _camera_moved_by_mouse(self, *_args) -> None:
+        if self._first_person:
+            self._set_first_person(False)
 
     def projector(self) -> VtkProjector:
         return VtkProjector(self.plotter.renderer)
@@ -191,10 +450,22 @@ class SceneView:
         for event, cb in self._subscriptions:
             event.disconnect(cb)
         self._subscriptions = []
+        if self._camera_observer is not None and getattr(self.plotter, "iren", None) is not None:
+            self.plotter.iren.interactor.RemoveObserver(self._camera_observer)
+            self._camera_observer = None
+        if self.overlay is not None:
+            self.overlay.RemoveAllViewProps()
+            if self.plotter.render_window is not None:
+                self.plotter.render_window.RemoveRenderer(self.overlay)
+            self.overlay = None
 
     # ------------------------------------------------------------------ updates
     def _refresh_points(self) -> None:
         visible = self.visible
+        if self._points_actor is not None:
+            self._points_actor.SetVisibility(bool(visible.any()))
+        if not visible.any():  # the slice is below every point: nothing to draw
+            return
         cloud = pv.PolyData(self.points[visible])
         cloud.point_data["colours"] = self.colours()[visible]
         if self._points_actor is None:
@@ -209,14 +480,19 @@ class SceneView:
             self.show_legend()
 
     def _place_handles(self) -> None:
-        listener, source = self.state.listener, self.state.source
-        self._listener_actor.position = tuple(listener)
-        self._arrow_actor.position = tuple(listener)
-        self._arrow_actor.orientation = (0.0, 0.0, self.state.yaw)
-        self._source_actor.position = tuple(source)
+        listener, source = tuple(self.state.listener), tuple(self.state.source)
+        for actor in self._listener_parts:
+            actor.position = listener
+        for actor in self._facing_parts:
+            actor.position = listener
+            actor.orientation = (0.0, 0.0, self.state.yaw)
+        for actor in self._source_parts:
+            actor.position = source
 
     def _on_pose(self, _value: Any) -> None:
         self._place_handles()
+        if self._first_person:
+            self.camera_listener()
         self.plotter.render()
 
     def _on_points(self, _value: Any) -> None:
@@ -228,6 +504,8 @@ class SceneView:
 
     def set_fast(self, fast: bool) -> None:
         """Cheap point style (plain squares) while anything moves; shaded spheres when idle."""
+        if self._points_actor is None:
+            return
         prop = self._points_actor.prop
         prop.render_points_as_spheres = not fast
         prop.point_size = POINT_SIZE - 2 if fast else POINT_SIZE

@@ -6,8 +6,9 @@ setter validates, clamps to the scene and emits only when the value really chang
 a widget that mirrors the state can set it back without an endless loop.
 
 Coordinates are world coordinates, yaw is degrees counter-clockwise from +x
-(ARCHITECTURE.md). The listener moves at its own height; the source anywhere inside
-the scene bounds.
+(ARCHITECTURE.md). A drag moves the listener at its own height, the source anywhere;
+both stay inside the room's floor plan (``avgs_viewer.outline``), or the scene's box when
+the checkpoint has no outline.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
+
+from .outline import Footprint
 
 
 class ColourMode(str, enum.Enum):
@@ -82,15 +85,20 @@ def _vec3(value: Any, what: str) -> np.ndarray:
 class ViewerState:
     """Listener, yaw, source, colour mode, slice height, volume and play state.
 
-    ``bounds`` [2, 3] world (min corner, max corner) constrains both positions.
+    ``bounds`` [2, 3] world (min corner, max corner) constrains both positions; with the
+    room's ``outline`` ([K, 2, 3] world segments, ``SceneRenderer.outline``) they are kept
+    inside its floor plan and height instead (:class:`~avgs_viewer.outline.Footprint`).
     """
 
     def __init__(self, bounds: np.ndarray, source: Any, listener: Any = None, yaw: float = 0.0,
-                 colour_mode: ColourMode = ColourMode.VICINITY, has_rgb: bool = False):
+                 colour_mode: ColourMode = ColourMode.VICINITY, has_rgb: bool = False, outline: Any = None):
         bounds = np.asarray(bounds, dtype=np.float64)
         if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or np.any(bounds[1] < bounds[0]):
             raise ValueError(f"bounds must be [2, 3] finite (min, max) corners with max >= min, got {bounds!r}")
         self.bounds = bounds  # [2, 3]
+        self.footprint = Footprint.from_outline(outline, bounds)
+        self.region = "room" if self.footprint.from_outline else "scene"
+        "What positions are kept inside, in words: the room (its outline) or the scene (its box)."
         self.has_rgb = bool(has_rgb)
         self.events = ViewerEvents()
         self._source = self._clamp(_vec3(source, "source"))
@@ -119,12 +127,13 @@ class ViewerState:
 
     # ------------------------------------------------------------------ helpers
     def _clamp(self, xyz: np.ndarray, what: str | None = None) -> np.ndarray:
-        """``xyz`` inside the bounds (the renderer's scene box); a move by the user (``what``
-        given) that had to be clamped emits ``clamped`` with a message naming both positions."""
-        inside = np.clip(xyz, self.bounds[0], self.bounds[1])
+        """``xyz`` moved to the nearest place inside the room's floor plan and height (the
+        scene's box without an outline); a move by the user (``what`` given) that had to be
+        clamped emits ``clamped`` with a message naming both positions."""
+        inside = np.clip(self.footprint.clamp(xyz), self.bounds[0], self.bounds[1])
         if what is not None and not np.array_equal(inside, xyz):
             self.events.clamped.emit(
-                f"{what} kept inside the scene: ({', '.join(f'{v:.2f}' for v in xyz)}) -> "
+                f"{what} kept inside the {self.region}: ({', '.join(f'{v:.2f}' for v in xyz)}) -> "
                 f"({', '.join(f'{v:.2f}' for v in inside)})")
         return inside
 
@@ -153,10 +162,12 @@ class ViewerState:
     def listener(self) -> np.ndarray:
         return self._listener.copy()
 
-    def set_listener(self, xyz: Any) -> None:
-        """Move the listener in xy, kept at its own height and inside the bounds."""
+    def set_listener(self, xyz: Any, keep_height: bool = True) -> None:
+        """Move the listener in xy, kept at its own height (unless ``keep_height`` is False,
+        as for a typed position) and inside the room."""
         xyz = _vec3(xyz, "listener").copy()
-        xyz[2] = self._listener[2]
+        if keep_height:
+            xyz[2] = self._listener[2]
         xyz = self._clamp(xyz, "listener")
         if np.array_equal(xyz, self._listener):
             return
@@ -169,7 +180,7 @@ class ViewerState:
         return self._source.copy()
 
     def set_source(self, xyz: Any) -> None:
-        """Move the source anywhere inside the bounds."""
+        """Move the source anywhere inside the room."""
         xyz = self._clamp(_vec3(xyz, "source"), "source")
         if np.array_equal(xyz, self._source):
             return

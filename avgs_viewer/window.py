@@ -1,9 +1,11 @@
 """The Qt main window: composition only.
 
-It owns a ``pyvistaqt.QtInteractor`` and hands it to :class:`~avgs_viewer.scene_view.SceneView`;
-forwards mouse events to the Qt-free :class:`~avgs_viewer.drag.DragController`; mirrors
-the :class:`~avgs_viewer.state.ViewerState` in its widgets; sends poses to the render
-worker (:class:`~avgs_viewer.worker.LiveRender`) and brings results back to the GUI
+It owns the 3D view (:class:`~avgs_viewer.canvas.SceneCanvas`, which draws on demand,
+coalesced) and hands it to :class:`~avgs_viewer.scene_view.SceneView`; forwards mouse
+events to the Qt-free :class:`~avgs_viewer.drag.DragController`; mirrors the
+:class:`~avgs_viewer.state.ViewerState` in its widgets. A pose change goes to the audio
+path first (:class:`~avgs_viewer.worker.LiveAudio`: the pose's filter on a worker, then
+the audio engine's next block) and only asks for a repaint; results come back to the GUI
 thread with a queued signal. The model never runs on the GUI thread: checkpoints load on
 a background thread too, so the window shows before torch is even imported.
 """
@@ -18,10 +20,13 @@ from typing import Any
 
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
-from pyvistaqt import QtInteractor
-
 from . import audio, export
+from .canvas import SceneCanvas
 from .drag import DragController
+from .help import help_html
+from .help import key as help_key
+from .pose_panel import PosePanel
+from .propagation_view import MapControls
 from .scene_view import SceneView
 from .state import ColourMode, ViewerState
 
@@ -29,6 +34,8 @@ COLOUR_MODE_NAMES = {ColourMode.VICINITY: "Vicinity sets", ColourMode.ALPHA: "Le
                      ColourMode.RGB: "G's colour (RGB)"}
 YAW_STEP = 15.0
 METER_FLOOR_DB = -60.0
+METER_INTERVAL_MS = 500
+SHOW_MS = 150
 
 
 class _Bridge(QtCore.QObject):
@@ -36,8 +43,17 @@ class _Bridge(QtCore.QObject):
 
     loaded = QtCore.Signal(object, object)      # (path, SceneRenderer)
     load_failed = QtCore.Signal(object, str)    # (path, message)
-    rendered = QtCore.Signal(object, object)    # (PoseRequest, RenderResult)
+    rendered = QtCore.Signal(object)            # worker.Heard: the pose the engine now plays
     render_failed = QtCore.Signal(object, str)  # (PoseRequest, message)
+
+
+def audio_status_text(message: str | None, sample_rate: int) -> str:
+    """The status bar's audio field in plain words (the technical reason goes in its tooltip)."""
+    if not message:
+        return f"Audio: {sample_rate} Hz"
+    if message == "Audio output off":
+        return "Audio output off: the meters show what would play"
+    return "No audio: no sound card found (the meters show what would play)"
 
 
 def _swatches(rows: list[tuple[str, tuple[int, int, int]]]) -> str:
@@ -45,12 +61,15 @@ def _swatches(rows: list[tuple[str, tuple[int, int, int]]]) -> str:
 
 
 class ControlPanel(QtWidgets.QWidget):
-    """Colour mode, legend, slice height, yaw dial, playback and level meters."""
+    """Pose fields, colour mode, legend, slice height, yaw dial, playback and level meters."""
 
     def __init__(self, parent: QtWidgets.QWidget | None = None):
         super().__init__(parent)
         self.state: ViewerState | None = None
         form = QtWidgets.QVBoxLayout(self)
+
+        self.pose = PosePanel()
+        form.addWidget(self.pose)
 
         self.colour_mode = QtWidgets.QComboBox()
         self.legend = QtWidgets.QLabel()
@@ -74,14 +93,23 @@ class ControlPanel(QtWidgets.QWidget):
         self.volume = QtWidgets.QSlider(QtCore.Qt.Orientation.Horizontal)
         self.volume.setRange(0, 100)
         self.meter_left, self.meter_right = QtWidgets.QProgressBar(), QtWidgets.QProgressBar()
-        for meter, name in ((self.meter_left, "L"), (self.meter_right, "R")):
+        meters = QtWidgets.QWidget()
+        meter_grid = QtWidgets.QGridLayout(meters)
+        meter_grid.setContentsMargins(0, 0, 0, 0)
+        for row, (meter, name, ear) in enumerate(((self.meter_left, "L", "left"), (self.meter_right, "R", "right"))):
             meter.setRange(int(METER_FLOOR_DB * 10), 0)
             meter.setValue(int(METER_FLOOR_DB * 10))  # silent until the first levels arrive
             meter.setFormat(f"{name} %v")
             meter.setTextVisible(False)
+            meter.setToolTip(f"{ear} ear, {METER_FLOOR_DB:.0f} to 0 dB")
+            label = QtWidgets.QLabel(f"<b>{name}</b>")
+            label.setToolTip(f"{ear} ear")
+            meter_grid.addWidget(label, row, 0)
+            meter_grid.addWidget(meter, row, 1)
+        self.meter_labels = [meter_grid.itemAtPosition(r, 0).widget() for r in range(2)]
         self.levels = QtWidgets.QLabel("L - dB   R - dB   ILD - dB")
         form.addWidget(self._group("Playback", self.play, QtWidgets.QLabel("Volume"), self.volume,
-                                   self.meter_left, self.meter_right, self.levels))
+                                   meters, self.levels))
         form.addStretch(1)
         self.setEnabled(False)
 
@@ -102,6 +130,7 @@ class ControlPanel(QtWidgets.QWidget):
     def bind(self, state: ViewerState, view: SceneView) -> None:
         """Mirror ``state`` in the widgets (and widgets into it)."""
         self.state, self.view = state, view
+        self.pose.bind(state)
         with QtCore.QSignalBlocker(self.colour_mode):
             self.colour_mode.clear()
             for mode, name in COLOUR_MODE_NAMES.items():
@@ -165,17 +194,23 @@ class ControlPanel(QtWidgets.QWidget):
 
 
 class ExportOptions(QtWidgets.QDialog):
-    """Scale and transparent background for a screenshot."""
+    """Scale, transparent background, legend and pose caption for a screenshot."""
 
     def __init__(self, parent: QtWidgets.QWidget | None = None):
         super().__init__(parent)
         self.setWindowTitle("Screenshot options")
         layout = QtWidgets.QFormLayout(self)
         self.scale = QtWidgets.QSpinBox()
-        self.scale.setRange(1, 8)
+        self.scale.setRange(1, export.MAX_SCALE)
         self.transparent = QtWidgets.QCheckBox("Transparent background")
+        self.legend = QtWidgets.QCheckBox("Legend of the colours")
+        self.legend.setChecked(True)
+        self.caption = QtWidgets.QCheckBox("Caption with the pose")
+        self.caption.setChecked(True)
         layout.addRow("Scale", self.scale)
         layout.addRow(self.transparent)
+        layout.addRow(self.legend)
+        layout.addRow(self.caption)
         buttons = QtWidgets.QDialogButtonBox(QtWidgets.QDialogButtonBox.StandardButton.Ok
                                              | QtWidgets.QDialogButtonBox.StandardButton.Cancel)
         buttons.accepted.connect(self.accept)
@@ -198,7 +233,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.view: SceneView | None = None
         self.drag: DragController | None = None
         self.live = None
-        self.engine: audio.LoopEngine | None = None
+        self.engine: audio.StreamEngine | None = None
         self.output: audio.AudioOutput | None = None
         self.error_dialog: QtWidgets.QMessageBox | None = None
         self._clip_path = Path(clip_path) if clip_path else None
@@ -211,11 +246,13 @@ class MainWindow(QtWidgets.QMainWindow):
         self._bridge.rendered.connect(self._on_rendered)
         self._bridge.render_failed.connect(self._on_render_failed)
 
-        self.plotter = QtInteractor(self)
+        self.plotter = SceneCanvas(self)  # no render timer; renders coalesced into repaints
         self.plotter.installEventFilter(self)
         self.plotter.iren.add_observer("StartInteractionEvent", lambda *_: self._camera_moving(True))
         self.plotter.iren.add_observer("EndInteractionEvent", lambda *_: self._camera_moving(False))
         self.panel = ControlPanel()
+        self.map_controls = MapControls(self)  # propagation map toggle (panel) and listener-view inset
+        self.panel.layout().insertWidget(self.panel.layout().count() - 1, self.map_controls.box)
         splitter = QtWidgets.QSplitter()
         splitter.addWidget(self.plotter)
         splitter.addWidget(self.panel)
@@ -240,35 +277,63 @@ class MainWindow(QtWidgets.QMainWindow):
         self.statusBar().addPermanentWidget(self.progress)
         self._build_menus()
 
-        self.meter_timer = QtCore.QTimer(self)
-        self.meter_timer.setInterval(50)
+        # Vicinity colours and levels of the newest pose, coalesced: while a handle moves, every
+        # repaint delays the mouse events behind it, so at most one update per SHOW_MS.
+        self._shown_heard = None
+        self._show_timer = QtCore.QTimer(self)
+        self._show_timer.setSingleShot(True)
+        self._show_timer.timeout.connect(self._show_heard)
+        self.meter_timer = QtCore.QTimer(self)  # runs only while sound plays
+        self.meter_timer.setInterval(METER_INTERVAL_MS)
         self.meter_timer.timeout.connect(self._update_meters)
 
     # ------------------------------------------------------------------ menus
     def _build_menus(self) -> None:
+        """Menus whose keys come from ``help.KEYS`` (the Help dialog lists the same table)."""
+        self.key_actions: dict[str, QtGui.QAction] = {}
         file_menu = self.menuBar().addMenu("&File")
-        self._action(file_menu, "&Open scene...", self.choose_scene, QtGui.QKeySequence.StandardKey.Open)
+        self._action(file_menu, "&Open scene...", self.choose_scene, "open_scene")
         self._action(file_menu, "Open &clip...", self.choose_clip)
         file_menu.addSeparator()
         self.export_shot_action = self._action(file_menu, "Export &screenshot...", self.choose_screenshot)
         self.export_audio_action = self._action(file_menu, "Export &audio...", self.choose_audio_export)
         file_menu.addSeparator()
-        self._action(file_menu, "&Quit", self.close, QtGui.QKeySequence.StandardKey.Quit)
+        self._action(file_menu, "&Quit", self.close, "quit")
         view_menu = self.menuBar().addMenu("&View")
-        self._action(view_menu, "&Reset camera", lambda: self.view and self.view.camera_home() or self.plotter.render(),
-                     "R")
-        self._action(view_menu, "Play / pause", lambda: self.state and self.state.toggle_playing(), "Space")
-        for keys, degrees in ((("Q", "Left"), YAW_STEP), (("E", "Right"), -YAW_STEP)):
-            act = QtGui.QAction(f"Turn {'left' if degrees > 0 else 'right'}", self)
-            act.setShortcuts([QtGui.QKeySequence(k) for k in keys])
-            act.setShortcutContext(QtCore.Qt.ShortcutContext.WindowShortcut)
-            act.triggered.connect(lambda _=False, d=degrees: self.state and self.state.turn(d))
-            view_menu.addAction(act)
+        for name, text in (("camera_home", "&Reset camera"), ("camera_top", "Camera from &top"),
+                           ("camera_front", "Camera from &front"), ("camera_listener", "Camera from the &listener")):
+            self._action(view_menu, text, lambda n=name: self.camera_preset(n), name)
+        view_menu.addSeparator()
+        self._action(view_menu, "Play / pause", lambda: self.state and self.state.toggle_playing(), "play")
+        self._action(view_menu, "Turn left", lambda: self.state and self.state.turn(YAW_STEP), "turn_left")
+        self._action(view_menu, "Turn right", lambda: self.state and self.state.turn(-YAW_STEP), "turn_right")
+        help_menu = self.menuBar().addMenu("&Help")
+        self._action(help_menu, "&Keys and mouse", self.show_help, "help")
+        self.help_dialog: QtWidgets.QMessageBox | None = None
 
-    def _action(self, menu: QtWidgets.QMenu, text: str, slot, shortcut=None) -> QtGui.QAction:
+    def camera_preset(self, name: str) -> None:
+        """One of the view's camera presets: camera_home, camera_top, camera_front, camera_listener."""
+        if self.view is not None:
+            getattr(self.view, name)()
+            self.plotter.render()
+
+    def show_help(self) -> None:
+        """Every key and mouse action (``help.KEYS`` and ``help.MOUSE``), non-blocking."""
+        if self.help_dialog is None:
+            box = QtWidgets.QMessageBox(QtWidgets.QMessageBox.Icon.NoIcon, "AV-GS explorer: keys and mouse",
+                                        help_html(), QtWidgets.QMessageBox.StandardButton.Close, self)
+            box.setTextFormat(QtCore.Qt.TextFormat.RichText)
+            self.help_dialog = box
+        self.help_dialog.show()
+        self.help_dialog.raise_()
+
+    def _action(self, menu: QtWidgets.QMenu, text: str, slot, key_name: str | None = None) -> QtGui.QAction:
+        """A menu entry; ``key_name`` names its keys in ``help.KEYS``."""
         act = QtGui.QAction(text, self)
-        if shortcut is not None:
-            act.setShortcut(QtGui.QKeySequence(shortcut))
+        if key_name is not None:
+            act.setShortcuts([QtGui.QKeySequence(k) for k in help_key(key_name).keys])
+            act.setShortcutContext(QtCore.Qt.ShortcutContext.WindowShortcut)
+            self.key_actions[key_name] = act
         act.triggered.connect(lambda _=False: slot())
         menu.addAction(act)
         return act
@@ -334,28 +399,40 @@ class MainWindow(QtWidgets.QMainWindow):
         self.scene_loaded.emit(renderer)
 
     def _install_scene(self, renderer: Any) -> None:
-        from .worker import LiveRender
+        from .worker import LiveAudio
 
         self._teardown_scene()
-        state = ViewerState(renderer.bounds, renderer.source, has_rgb=renderer.gaussians is not None)
+        state = ViewerState(renderer.bounds, renderer.source, has_rgb=renderer.gaussians is not None,
+                            outline=renderer.outline)  # positions stay inside the room's floor plan
         self.plotter.clear()
         view = SceneView(self.plotter, renderer, state)
         self.renderer, self.state, self.view = renderer, state, view
         self.drag = DragController(state, view.projector, view.handle_radius)
         self.panel.bind(state, view)
+        self.map_controls.install(self.plotter, renderer, state,  # the map waits while audio renders
+                                  audio_busy=lambda: self.live is not None and not self.live.worker.wait_idle(0.0))
         if self.engine is None or self.engine.sample_rate != renderer.sample_rate:
             self._start_engine(renderer.sample_rate)
         self.engine.reset_gain()
         state.events.clamped.connect(self._show_position_notice)
         state.events.volume.connect(lambda v: setattr(self.engine, "volume", v))
-        state.events.playing.connect(lambda p: setattr(self.engine, "playing", p))
-        self.engine.volume, self.engine.playing = state.volume, state.playing
+        state.events.playing.connect(self._set_playing)
+        self.engine.volume = state.volume
+        self._set_playing(state.playing)
         clip = self._load_clip(renderer.sample_rate)
-        self.live = LiveRender(renderer, state, self.engine, clip,
-                               on_result=lambda req, res: self._bridge.rendered.emit(req, res),
-                               on_error=lambda req, exc: self._bridge.render_failed.emit(req, f"{type(exc).__name__}: {exc}"))
+        # LiveAudio subscribes to the state's pose event; the view's handlers before it only ask
+        # for a repaint (SceneCanvas), so a move reaches the audio path before anything is drawn.
+        self.live = LiveAudio(renderer, state, self.engine, clip, on_result=self._bridge.rendered.emit,
+                              on_error=lambda req, exc: self._bridge.render_failed.emit(req, f"{type(exc).__name__}: {exc}"))
         self.live.request()
         self.plotter.render()
+
+    def _set_playing(self, playing: bool) -> None:
+        """Play or pause the engine (it ramps over one block); the meters run only while sound plays."""
+        self.engine.playing = playing
+        if playing:
+            self.meter_timer.start()
+        # when paused, the timer stops itself once the meters have fallen silent (_update_meters)
 
     def _load_clip(self, sample_rate: int) -> np.ndarray:
         if self._clip_path is not None:
@@ -374,15 +451,18 @@ class MainWindow(QtWidgets.QMainWindow):
     def _start_engine(self, sample_rate: int) -> None:
         if self.output is not None:
             self.output.close()
-        self.engine = audio.LoopEngine(sample_rate)
-        self.output = audio.AudioOutput(self.engine)
-        message = self.output.start() if self._start_audio else "Audio output off"
-        self.audio_status.setText(message or f"Audio: {sample_rate} Hz")
+        self.engine = audio.StreamEngine(sample_rate)
+        # Without a sound card (or with audio off) a simulated clock pulls the engine's blocks,
+        # so meters, tests and the benchmark see the same output a card would play.
+        self.output = audio.AudioOutput(self.engine, device=self._start_audio)
+        message = self.output.start()
+        self.audio_status.setText(audio_status_text(message, sample_rate))
+        self.audio_status.setToolTip(message or "")
         if message:
-            self.statusBar().showMessage(message, 10000)
-        self.meter_timer.start()
+            self.statusBar().showMessage(audio_status_text(message, sample_rate), 10000)
 
     def _teardown_scene(self) -> None:
+        self.map_controls.teardown()
         if self.live is not None:
             self.live.close()
             self.live = None
@@ -392,25 +472,37 @@ class MainWindow(QtWidgets.QMainWindow):
         self.drag = None
 
     # ------------------------------------------------------------------ results
-    def _on_rendered(self, request: Any, result: Any) -> None:
-        if self.view is None or self.live is None or request is not self.live.last_request:
-            return  # a newer result (or another scene) has replaced it
-        self.view.set_vicinity(result.listener_vicinity, result.source_vicinity)
-        gain = self.engine.makeup_gain or 1.0  # levels as played at full volume
-        self.panel.show_levels(*audio.levels(result.binaural * gain))
+    def _on_rendered(self, heard: Any) -> None:
+        """A new pose is playing: show its vicinity sets and levels, at most every SHOW_MS while moving."""
+        self._shown_heard = heard
+        if not self._show_timer.isActive():
+            moving = self.state is not None and self.state.interacting
+            self._show_timer.start(SHOW_MS if moving else 0)
+
+    def _show_heard(self) -> None:
+        heard = self._shown_heard
+        if self.view is None or self.live is None or heard is None or heard is not self.live.heard:
+            return  # a newer pose (or another scene) has replaced it
+        self.view.set_vicinity(heard.result.listener_vicinity, heard.result.source_vicinity)
+        self.panel.show_levels(*heard.levels)  # the clip through this pose's filter, at full volume
 
     def _on_render_failed(self, request: Any, message: str) -> None:
         self.statusBar().showMessage(f"Render failed: {message}", 10000)
 
     def _update_meters(self) -> None:
-        if self.engine is not None:
-            if self.output is not None and self.output.available:
-                self.panel.show_meters(*self.engine.block_levels)
-            elif self.live is not None and self.live.last_result is not None:
-                # No device: show the newest render's levels as it would play (make-up gain, volume, pause).
-                gain = (self.engine.makeup_gain or 1.0) * (self.engine.volume if self.engine.playing else 0.0)
-                left, right, _ = audio.levels(self.live.last_result.binaural * gain)
-                self.panel.show_meters(left, right)
+        """The engine's output level (sound card or simulated clock); stops when paused and silent."""
+        if self.engine is None:
+            self.meter_timer.stop()
+            return
+        left, right = self.engine.block_levels
+        # Every repaint of any widget recomposes the whole window (it holds an OpenGL view): with
+        # software GL that costs tens of ms, so the meters move twice a second, when a level changed by 1.5 dB.
+        shown = getattr(self, "_meters_shown", None)
+        if shown is None or max(abs(left - shown[0]), abs(right - shown[1])) >= 1.5:
+            self.panel.show_meters(left, right)
+            self._meters_shown = (left, right)
+        if not self.engine.playing and max(left, right) <= audio.SILENCE_DB:
+            self.meter_timer.stop()
 
     # ------------------------------------------------------------------ mouse
     def _camera_moving(self, moving: bool) -> None:
@@ -468,16 +560,22 @@ class MainWindow(QtWidgets.QMainWindow):
             return
         path, _ = QtWidgets.QFileDialog.getSaveFileName(self, "Export screenshot", "scene.png", "PNG (*.png)")
         if path:
-            self.export_screenshot(path, options.scale.value(), options.transparent.isChecked())
+            self.export_screenshot(path, options.scale.value(), options.transparent.isChecked(),
+                                   legend=options.legend.isChecked(), caption=options.caption.isChecked())
 
-    def export_screenshot(self, path: str | Path, scale: int = 1, transparent: bool = False) -> Path | None:
-        """Write the 3D view as a PNG (``scale`` times the view's size)."""
+    def export_screenshot(self, path: str | Path, scale: int = 1, transparent: bool = False,
+                          legend: bool = False, caption: bool = False) -> Path | None:
+        """Write the 3D view as a PNG (``scale`` times the view's size), with the colour legend
+        and a caption naming the pose if asked (placed where they cover no handle)."""
         try:
-            out = export.write_screenshot(self.plotter, path, scale=scale, transparent=transparent,
-                                          inputs=(self.scene_path, self._clip_path))
+            with export.annotated(self.view, legend=legend, caption=caption):
+                out = export.write_screenshot(self.plotter, path, scale=scale, transparent=transparent,
+                                              inputs=(self.scene_path, self._clip_path))
         except (ValueError, OSError) as exc:
             self.show_error("Cannot export screenshot", str(exc))
             return None
+        finally:
+            self.plotter.render()
         self.statusBar().showMessage(f"Wrote {out}", 5000)
         return out
 
@@ -487,12 +585,12 @@ class MainWindow(QtWidgets.QMainWindow):
             self.export_audio(path)
 
     def export_audio(self, path: str | Path) -> Path | None:
-        """Write the current binaural render (the whole looped clip) as a WAV."""
-        if self.live is None or self.live.last_result is None:
+        """Write the looped clip as heard now (through the current pose's filter) as a WAV."""
+        if self.live is None or self.live.heard is None:
             self.show_error("Cannot export audio", "No binaural render yet: wait for the scene to load.")
             return None
         try:
-            out = export.write_wav(path, self.live.last_result.binaural, self.renderer.sample_rate,
+            out = export.write_wav(path, self.live.heard_clip(), self.renderer.sample_rate,
                                    inputs=(self.scene_path, self._clip_path))
         except (ValueError, OSError) as exc:
             self.show_error("Cannot export audio", str(exc))

@@ -1,18 +1,18 @@
-"""A render thread that keeps only the newest request, and the pose -> audio pipeline on it.
+"""A thread that keeps only the newest request, and the pose -> filter -> audio path on it.
 
-The GUI thread never runs the model: it submits the latest pose and goes on. While a
-render runs, newer poses overwrite each other; when it finishes, only the newest is
-rendered next, so a fast drag costs one render per render time, not one per mouse event.
-A pose is first heard as a draft with the source's phase (a few ms); once the user
-stops, the same pose is rendered again with the renderer's phase iterations
-(:class:`avgs.config.SynthesisConfig`) and swapped in.
+The GUI thread never runs the model: a pose change submits the pose and returns. While
+a filter is computed, newer poses overwrite each other; when it is done only the newest
+is computed next, so a fast drag costs one filter per few milliseconds, not one per
+mouse event, and no work ever stands between the newest pose and the audio.
+A pose's filter (``SceneRenderer.binaural_filter``: B's masks as a binaural impulse
+response) goes straight to the audio engine, which switches to it at its next block.
+There is no second, refined pass: the filter is the pose's whole sound.
 No Qt here: results come back through plain callbacks on the worker thread; the window
 forwards them to its own thread with a queued signal.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
 from dataclasses import dataclass
@@ -20,7 +20,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .audio import LoopEngine, make_seamless_loop
+from .audio import StreamEngine, filter_levels, make_seamless_loop
 from .state import Pose, ViewerState
 
 
@@ -54,17 +54,6 @@ class RenderWorker:
                 raise RuntimeError("render worker is closed")
             if self._has_request:
                 self.dropped += 1
-            self.submitted += 1
-            self._request, self._has_request = (self.submitted, request), True
-            self._cond.notify()
-            return self.submitted
-
-    def submit_if_idle(self, request: Any) -> int | None:
-        """Queue ``request`` only if nothing is queued (a newer request always wins); its
-        sequence number, or None when it was not queued."""
-        with self._cond:
-            if self._closed or self._has_request:
-                return None
             self.submitted += 1
             self._request, self._has_request = (self.submitted, request), True
             self._cond.notify()
@@ -120,31 +109,42 @@ class RenderWorker:
 
 @dataclass(frozen=True)
 class PoseRequest:
-    """One render: a pose and the clip (by generation number) it applies to."""
+    """One filter to compute: a pose, its number (the engine's tag) and when it was asked for."""
 
     pose: Pose
-    clip_id: int
+    seq: int
     submitted_at: float
-    draft: bool = False  # with the source's phase, to be refined when no newer pose comes
 
 
-class LiveRender:
-    """State pose changes -> SceneRenderer.render on the worker -> the audio engine's buffer.
+@dataclass(frozen=True)
+class Heard:
+    """What the engine plays now: the request, the renderer's result (``impulse`` [2, L],
+    vicinity sets, ...) and the levels the clip has through it at full volume."""
 
-    ``renderer`` is an ``avgs.SceneRenderer`` (or anything with its ``render``);
-    ``on_result(request, result)`` is called on the worker thread after the new buffer
-    has been handed to the engine (the window forwards it to the GUI thread for the
-    vicinity colours and meters). Call :meth:`set_clip` to change the looped clip; its
-    tail is crossfaded into its head over ``seam_seconds`` so the loop has no seam.
+    request: PoseRequest
+    result: Any
+    levels: tuple[float, float, float]  # (left dB, right dB, left - right dB)
+    ready_at: float  # perf_counter when the engine was handed the filter
 
-    When the renderer makes its waveforms with phase iterations (``renderer.synthesis``),
-    each pose is rendered first as a draft without them and then, if no newer pose has
-    come, again with them: a drag answers as fast as the masks, the pose the user stops
-    at sounds as ``render`` makes it.
+
+def pose_filter(renderer: Any, pose: Pose) -> Any:
+    """The pose's binaural filter: a ``RenderResult`` whose ``impulse`` is [2, L] float32 (left first)."""
+    return renderer.binaural_filter(pose.listener, pose.yaw, source=pose.source)
+
+
+class LiveAudio:
+    """State pose changes -> the pose's filter on the worker -> the audio engine.
+
+    ``renderer`` is an ``avgs.SceneRenderer`` (or anything with its ``binaural_filter``);
+    ``on_result(heard)`` is called on the worker thread once the engine has the new filter
+    (the window forwards it to the GUI thread for the vicinity colours and levels). The
+    pose event reaches this object before anything is drawn (the window draws on demand,
+    after the event returns). :meth:`set_clip` changes the looped clip; its tail is
+    crossfaded into its head over ``seam_seconds`` so the loop has no seam.
     """
 
-    def __init__(self, renderer: Any, state: ViewerState, engine: LoopEngine, clip: np.ndarray,
-                 on_result: Callable[[PoseRequest, Any], None] | None = None,
+    def __init__(self, renderer: Any, state: ViewerState, engine: StreamEngine, clip: np.ndarray,
+                 on_result: Callable[[Heard], None] | None = None,
                  on_error: Callable[[PoseRequest, BaseException], None] | None = None,
                  seam_seconds: float = 0.05):
         self.renderer = renderer
@@ -153,17 +153,13 @@ class LiveRender:
         self._on_result = on_result
         self._on_error = on_error
         self._seam = int(round(seam_seconds * engine.sample_rate))
-        self._clip = self._as_loop(clip)
-        self._clip_id = 0
-        synthesis = getattr(renderer, "synthesis", None)
-        self.draft_synthesis = (
-            dataclasses.replace(synthesis, phase_iterations=0)
-            if synthesis is not None and getattr(synthesis, "phase_iterations", 0) > 0 else None
-        )
-        "SynthesisConfig of the draft pass (no phase iterations), or None: one pass per pose."
-        self.last_result: Any = None
-        self.last_request: PoseRequest | None = None
-        self.worker = RenderWorker(self._render, self._deliver, self._fail)
+        self._lock = threading.Lock()
+        self.heard: Heard | None = None
+        "The newest pose whose filter the engine has (None before the first)."
+        self.seq = 0
+        "Number of the newest pose submitted (the engine's tag for its filter)."
+        engine.set_clip(self._as_loop(clip))
+        self.worker = RenderWorker(self._render, self._deliver, self._fail, name="avgs-filter")
         state.events.pose.connect(self._pose_changed)
 
     def _as_loop(self, clip: np.ndarray) -> np.ndarray:
@@ -175,37 +171,58 @@ class LiveRender:
     @property
     def clip(self) -> np.ndarray:
         """The looped mono clip [T] (seam already crossfaded)."""
-        return self._clip
+        return self.engine.clip
+
+    @property
+    def last_result(self) -> Any:
+        """The renderer's result for the pose heard now (None before the first)."""
+        heard = self.heard
+        return None if heard is None else heard.result
+
+    @property
+    def last_request(self) -> PoseRequest | None:
+        heard = self.heard
+        return None if heard is None else heard.request
+
+    def heard_clip(self) -> np.ndarray:
+        """[2, T] float32: the looped clip through the filter heard now (before volume and make-up gain)."""
+        import torch
+
+        from avgs.acoustics.impulse_response import convolve
+
+        heard = self.heard
+        if heard is None:
+            raise ValueError("no pose has been heard yet")
+        with torch.inference_mode():
+            y = convolve(torch.from_numpy(np.array(self.clip)), torch.from_numpy(np.array(heard.result.impulse)))
+        return y.float().numpy()
 
     def set_clip(self, clip: np.ndarray) -> None:
-        """Loop another mono clip [T] (already at the renderer's sample rate)."""
-        self._clip, self._clip_id = self._as_loop(clip), self._clip_id + 1
-        self.engine.reset_gain()
+        """Loop another mono clip [T] (already at the renderer's sample rate): crossfaded in at the
+        next block, through the same filter; the levels are measured again."""
+        self.engine.set_clip(self._as_loop(clip))
         self.request()
 
     def request(self) -> int:
-        """Render the state's current pose (called on every pose change)."""
-        draft = self.draft_synthesis is not None
-        return self.worker.submit(PoseRequest(self.state.pose, self._clip_id, time.perf_counter(), draft))
+        """Compute the state's current pose's filter (called on every pose change); its number."""
+        with self._lock:  # numbers follow submission order
+            self.seq = self.worker.submit(PoseRequest(self.state.pose, self.worker.submitted + 1, time.perf_counter()))
+            return self.seq
 
     def _pose_changed(self, pose: Pose) -> None:
         self.request()
 
     def _render(self, request: PoseRequest) -> Any:
-        clip = self._clip
-        pose = request.pose
-        extra = {"synthesis": self.draft_synthesis} if request.draft else {}
-        return self.renderer.render(listener=pose.listener, yaw=pose.yaw, mono=clip, source=pose.source, **extra)
+        return pose_filter(self.renderer, request.pose)
 
     def _deliver(self, seq: int, request: PoseRequest, result: Any) -> None:
-        if request.clip_id != self._clip_id:
-            return  # rendered for a clip that has since been replaced
-        self.engine.set_buffer(result.binaural)
-        self.last_result, self.last_request = result, request
+        self.engine.set_filter(result.impulse, tag=request.seq)
+        ready = time.perf_counter()
+        levels = filter_levels(result.impulse, self.engine.spectrum, self.engine.makeup_gain or 1.0)
+        heard = Heard(request, result, levels, ready)
+        self.heard = heard
         if self._on_result is not None:
-            self._on_result(request, result)
-        if request.draft:
-            self.worker.submit_if_idle(dataclasses.replace(request, draft=False))
+            self._on_result(heard)
 
     def _fail(self, seq: int, request: PoseRequest, exc: BaseException) -> None:
         if self._on_error is not None:

@@ -11,7 +11,7 @@ APT_PACKAGES=(
   libxkbcommon-x11-0 libxcb-cursor0 libxcb-icccm4 libxcb-image0 libxcb-keysyms1
   libxcb-randr0 libxcb-render-util0 libxcb-shape0 libxcb-xinerama0 libxcb-xkb1
   libxcb-xfixes0 libxrender1 libxi6 libfontconfig1 libdbus-1-3
-  libportaudio2 libsndfile1 libusb-1.0-0 libgomp1
+  libportaudio2 libsndfile1 libusb-1.0-0 libgomp1 libxtst6
 )
 
 missing=()

@@ -228,31 +228,6 @@ def test_worker_renders_only_the_newest_request():
     assert w.dropped == 2 and not w.alive
 
 
-def test_submit_if_idle_never_replaces_a_queued_request():
-    gate = threading.Event()
-    rendered = []
-
-    def render(x):
-        rendered.append(x)
-        gate.wait(5)
-        return x
-
-    w = RenderWorker(render, lambda seq, req, res: None)
-    try:
-        w.submit(1)
-        deadline = time.monotonic() + 5
-        while not rendered and time.monotonic() < deadline:
-            time.sleep(0.001)
-        assert w.submit_if_idle(2) == 2  # nothing queued: taken
-        w.submit(3)  # a newer request replaces it
-        assert w.submit_if_idle(4) is None  # 3 is queued: 4 is not
-        gate.set()
-        assert w.wait_idle(5)
-    finally:
-        w.close()
-    assert rendered == [1, 3]
-
-
 def test_worker_reports_errors_and_keeps_going():
     errors, results = [], []
 

@@ -1,0 +1,83 @@
+"""The window's 3D view: a ``pyvistaqt.QtInteractor`` that draws on demand, coalesced.
+
+pyvistaqt draws in three ways that each cost a full VTK render on the GUI thread, and
+on software GL a render is tens of milliseconds during which mouse events wait:
+
+- a periodic render timer (5 Hz by default, 69 % of a core with the window idle on
+  Mesa under Xvfb);
+- ``plotter.render()``, which renders at once and then schedules a repaint, whose
+  ``paintGL`` renders again (two renders per call, one per pose change of a drag);
+- the VTK interactor's ``Render()`` on every camera move of an orbit, again followed
+  by a repaint that renders.
+
+Here all three become one request: ``render()`` and the interactor's render requests
+only mark the widget for repaint (``QWidget.update``, which Qt coalesces), and
+``paintGL`` renders once. So at most one render is in flight, none runs while nothing
+changed, and any number of changes between two paints cost one render. What needs
+the pixels at once (screenshots) calls :meth:`SceneCanvas.render_now`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+
+from pyvistaqt import QtInteractor
+
+
+class SceneCanvas(QtInteractor):
+    """A ``QtInteractor`` with no render timer whose renders are coalesced into repaints.
+
+    ``frames`` counts the renders drawn (paints); ``frame_times`` keeps the
+    ``time.perf_counter()`` of the last 1024, for the frame-rate benchmark.
+    """
+
+    def __init__(self, parent=None, **kwargs):
+        super().__init__(parent, auto_update=False, **kwargs)
+        self.frames = 0
+        self.frame_times: deque[float] = deque(maxlen=1024)
+        iren = self.ren_win.GetInteractor()
+        # The interactor (camera orbit, zoom) asks for renders through Render(), which renders
+        # only while EnableRender is on and always fires RenderEvent: a repaint request instead.
+        iren.EnableRenderOff()
+        self._render_observer = iren.AddObserver("RenderEvent", self._vtk_render_requested)
+        self._vtk_iren = iren
+
+    def render(self) -> None:
+        """Ask for a repaint: the scene is drawn once at the next paint, however many calls came before."""
+        if getattr(self, "_closed", False):
+            return
+        self._rendered = True  # what BasePlotter.render sets: the plotter counts as shown
+        self.update()
+
+    def render_now(self) -> None:
+        """Render at once (for reading pixels back); the widget repaints after."""
+        super().render()
+
+    def screenshot(self, *args, **kwargs):
+        """``pyvista``'s screenshot of the scene as it is now (rendered first, not the last paint)."""
+        self.render_now()
+        return super().screenshot(*args, **kwargs)
+
+    def _vtk_render_requested(self, *_args) -> None:
+        if not self._in_paint:
+            self.update()
+
+    def close(self) -> None:
+        iren, self._vtk_iren = self._vtk_iren, None
+        if iren is not None:  # VTK holds the bound method: it would pin the widget after close
+            iren.RemoveObserver(self._render_observer)
+            iren.EnableRenderOn()
+        super().close()
+
+    def paintGL(self) -> None:  # noqa: N802
+        iren = self._vtk_iren
+        if iren is None:  # closed
+            return super().paintGL()
+        iren.EnableRenderOn()
+        try:
+            super().paintGL()
+        finally:
+            iren.EnableRenderOff()
+        self.frames += 1
+        self.frame_times.append(time.perf_counter())

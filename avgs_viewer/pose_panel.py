@@ -1,0 +1,124 @@
+"""The pose panel: the listener's x, y, z and yaw and the source's x, y, z, shown and typed.
+
+Each field mirrors the :class:`~avgs_viewer.state.ViewerState` (a drag or a key updates
+it) and writes a typed value back when editing finishes (Enter or leaving the field). The
+fields accept any number: the state keeps the position inside the room, and the panel
+then shows where it went and says so in ``notice`` (the state's ``clamped`` event), rather
+than the field silently refusing the value.
+"""
+
+from __future__ import annotations
+
+from PySide6 import QtCore, QtWidgets
+
+from .state import ViewerState
+
+LIMIT = 1e6  # what a field accepts; the state, not the field, decides what is inside the room
+
+
+def _field(suffix: str = "", decimals: int = 2) -> QtWidgets.QDoubleSpinBox:
+    box = QtWidgets.QDoubleSpinBox()
+    box.setRange(-LIMIT, LIMIT)
+    box.setDecimals(decimals)
+    box.setSingleStep(0.1)
+    box.setKeyboardTracking(False)  # typing "2.5" is one value, not "2", "2.", "2.5"
+    box.setSuffix(suffix)
+    box.setAccelerated(True)
+    return box
+
+
+class PosePanel(QtWidgets.QGroupBox):
+    """x, y, z of the listener and the source, the listener's yaw; a note when a position was clamped."""
+
+    def __init__(self, parent: QtWidgets.QWidget | None = None):
+        super().__init__("Pose (world coordinates)", parent)
+        self.state: ViewerState | None = None
+        grid = QtWidgets.QGridLayout(self)
+        grid.setContentsMargins(6, 6, 6, 6)
+        grid.setHorizontalSpacing(4)
+        for col, name in enumerate(("", "x", "y", "z"), start=0):
+            if name:
+                grid.addWidget(QtWidgets.QLabel(name), 0, col, QtCore.Qt.AlignmentFlag.AlignHCenter)
+        self.listener = [_field() for _ in range(3)]
+        self.source = [_field() for _ in range(3)]
+        for row, (label, fields) in enumerate((("Listener", self.listener), ("Source", self.source)), start=1):
+            grid.addWidget(QtWidgets.QLabel(label), row, 0)
+            for col, box in enumerate(fields, start=1):
+                grid.addWidget(box, row, col)
+        self.yaw = _field(" deg", decimals=1)
+        self.yaw.setRange(-360.0, 720.0)
+        self.yaw.setSingleStep(5.0)
+        self.yaw.setWrapping(True)
+        self.yaw.setToolTip("Degrees counter-clockwise from +x: 0 faces +x, 90 faces +y")
+        grid.addWidget(QtWidgets.QLabel("Yaw"), 3, 0)
+        grid.addWidget(self.yaw, 3, 1, 1, 2)
+        self.notice = QtWidgets.QLabel()
+        self.notice.setWordWrap(True)
+        self.notice.setStyleSheet("color: #b35c00")
+        grid.addWidget(self.notice, 4, 0, 1, 4)
+        self._notice_timer = QtCore.QTimer(self)
+        self._notice_timer.setSingleShot(True)
+        self._notice_timer.setInterval(8000)
+        self._notice_timer.timeout.connect(self.notice.clear)
+
+        for box in self.listener:
+            box.editingFinished.connect(self._listener_typed)
+        for box in self.source:
+            box.editingFinished.connect(self._source_typed)
+        self.yaw.editingFinished.connect(self._yaw_typed)
+
+    def bind(self, state: ViewerState) -> None:
+        """Mirror ``state`` in the fields (and typed values into it)."""
+        if self.state is not None:
+            for event, cb in self._subscriptions():
+                event.disconnect(cb)
+        self.state = state
+        for event, cb in self._subscriptions():
+            event.connect(cb)
+        self.notice.clear()
+        self._show_listener(state.listener)
+        self._show_source(state.source)
+        self._show_yaw(state.yaw)
+        self.setToolTip(f"Positions are kept inside the {state.region}")
+
+    def _subscriptions(self):
+        ev = self.state.events
+        return ((ev.listener, self._show_listener), (ev.source, self._show_source), (ev.yaw, self._show_yaw),
+                (ev.clamped, self._show_notice))
+
+    # ------------------------------------------------------------------ state -> fields
+    @staticmethod
+    def _show(fields, xyz) -> None:
+        for box, v in zip(fields, xyz):
+            with QtCore.QSignalBlocker(box):
+                box.setValue(float(v))
+
+    def _show_listener(self, xyz) -> None:
+        self._show(self.listener, xyz)
+
+    def _show_source(self, xyz) -> None:
+        self._show(self.source, xyz)
+
+    def _show_yaw(self, yaw: float) -> None:
+        with QtCore.QSignalBlocker(self.yaw):
+            self.yaw.setValue(float(yaw))
+
+    def _show_notice(self, message: str) -> None:
+        self.notice.setText(message)
+        self._notice_timer.start()
+
+    # ------------------------------------------------------------------ fields -> state
+    def _listener_typed(self) -> None:
+        if self.state is not None:
+            self.state.set_listener([b.value() for b in self.listener], keep_height=False)
+            self._show_listener(self.state.listener)  # a clamped value shows where it went
+
+    def _source_typed(self) -> None:
+        if self.state is not None:
+            self.state.set_source([b.value() for b in self.source])
+            self._show_source(self.state.source)
+
+    def _yaw_typed(self) -> None:
+        if self.state is not None:
+            self.state.set_yaw(self.yaw.value())
+            self._show_yaw(self.state.yaw)

@@ -1,0 +1,553 @@
+"""The propagation map on the floor, and the listener's view of G in a corner of the 3D view.
+
+:class:`PropagationView` draws :mod:`avgs.propagation_map` (level or interaural level
+difference over a grid of listener positions, for the current source and yaw) as a
+coloured plane on the floor of any PyVista plotter, with a colour bar titled with its unit.
+The map is computed on its own daemon thread, coarse to fine, and drawn as it fills in;
+a new source, yaw or listener height cancels the computation in progress (newest request
+wins). Listener moves in the plane do not change the map. Before each small chunk of
+cells the thread waits while the audio render worker is busy (``audio_busy``), so the map
+never delays what the user hears.
+
+:class:`ListenerInset` shows G rendered from the listener's pose
+(:class:`avgs.listener_view.ListenerView`) as an image in the lower right corner of the 3D
+view, re-rendered on a background thread once the listener has stopped moving; it is part
+of the VTK scene, so screenshots include it. Only for checkpoints saved with G.
+
+No Qt here: results come back on the computing thread and are handed to ``post``, which
+must run a callable on the thread that owns the plotter (the window passes
+:func:`qt_poster`; headless code uses the default, which runs it at once).
+"""
+
+from __future__ import annotations
+
+import enum
+import threading
+from typing import Any, Callable
+
+import numpy as np
+import pyvista as pv
+
+from .state import ViewerState
+
+MAP_BATCH = 128
+"Cells per partial update of the map on screen."
+
+MAP_OPACITY = 0.85
+INSET_CAPTION = "listener's view (G)"
+TITLES = {"level": "Level (dB)", "ild": "ILD (dB, left - right)"}
+CMAPS = {"level": "inferno", "ild": "RdBu_r"}
+
+
+def bar_title(kind: str) -> str:
+    """The colour bar's title (and its key in ``plotter.scalar_bars``): the unit, with a blank
+    line below it so that the top label does not overlap it."""
+    return TITLES[kind] + "\n"
+
+
+class MapMode(str, enum.Enum):
+    """What the floor shows."""
+
+    OFF = "off"
+    LEVEL = "level"
+    ILD = "ild"
+
+
+MODE_NAMES = {MapMode.OFF: "Off", MapMode.LEVEL: "Level (dB)", MapMode.ILD: "ILD (dB)"}
+
+
+def qt_poster(parent=None) -> Callable[[Callable[[], None]], None]:
+    """A ``post`` that runs callables on the Qt thread owning ``parent`` (a queued signal)."""
+    from PySide6 import QtCore
+
+    class _Poster(QtCore.QObject):
+        call = QtCore.Signal(object)
+
+        @QtCore.Slot(object)
+        def run(self, fn) -> None:
+            fn()
+
+    poster = _Poster(parent)  # lives on parent's thread: the queued slot runs there
+    poster.call.connect(poster.run, QtCore.Qt.ConnectionType.QueuedConnection)
+    return poster.call.emit
+
+
+def _run_now(fn: Callable[[], None]) -> None:
+    fn()
+
+
+def floor_height(scene: Any) -> float:
+    """z of the floor: the room outline's lowest point, else the scene box's floor."""
+    outline = scene.outline
+    if outline is not None and len(outline):
+        return float(np.asarray(outline)[..., 2].min())
+    return float(np.asarray(scene.bounds)[0, 2])
+
+
+def colour_limits(values: np.ndarray, kind: str) -> tuple[float, float]:
+    """The colour bar's range: the computed cells' range; symmetric about 0 for the ILD."""
+    v = values[np.isfinite(values)]
+    if v.size == 0:
+        return (-1.0, 1.0) if kind == "ild" else (-1.0, 0.0)
+    if kind == "ild":
+        top = max(float(np.abs(v).max()), 0.5)
+        return -top, top
+    lo, hi = float(v.min()), float(v.max())
+    return (lo, hi) if hi - lo > 0.5 else (hi - 0.5, hi)
+
+
+class MapWorker:
+    """One daemon thread computing maps, newest request wins; the one running is cancelled.
+
+    ``compute(request, cancelled)`` is a generator of partial results; ``on_partial(seq,
+    request, result)`` and ``on_error(seq, request, exc)`` run on the worker thread.
+    ``gate()`` is called before every chunk; while it returns False the thread waits.
+    """
+
+    def __init__(self, compute, on_partial, on_error=None, gate: Callable[[], bool] | None = None):
+        self._compute, self._on_partial, self._on_error = compute, on_partial, on_error
+        self._gate = gate
+        self._cond = threading.Condition()
+        self._seq = 0  # the newest submission
+        self._pending: tuple[int, Any] | None = None
+        self._running: int | None = None
+        self._closed = False
+        self._thread = threading.Thread(target=self._loop, name="avgs-map", daemon=True)
+        self._thread.start()
+
+    def submit(self, request: Any) -> int:
+        with self._cond:
+            self._seq += 1
+            self._pending = (self._seq, request)
+            self._cond.notify_all()
+            return self._seq
+
+    def cancel(self) -> None:
+        """Drop what is queued and stop what runs."""
+        with self._cond:
+            self._seq += 1
+            self._pending = None
+            self._cond.notify_all()
+
+    def idle(self) -> bool:
+        with self._cond:
+            return self._pending is None and self._running is None
+
+    def wait_idle(self, timeout: float = 30.0) -> bool:
+        import time
+
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self._pending is not None or self._running is not None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+        return True
+
+    def close(self, timeout: float = 10.0) -> None:
+        with self._cond:
+            self._closed = True
+            self._seq += 1
+            self._pending = None
+            self._cond.notify_all()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout)
+
+    def _stale(self, seq: int) -> bool:
+        if self._closed or self._seq != seq:
+            return True
+        gate = self._gate
+        while gate is not None and not gate():  # audio first: wait while it renders
+            with self._cond:
+                self._cond.wait(0.02)
+                if self._closed or self._seq != seq:
+                    return True
+        return False
+
+    def _loop(self) -> None:
+        while True:
+            with self._cond:
+                while self._pending is None and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                (seq, request), self._pending = self._pending, None
+                self._running = seq
+            try:
+                for part in self._compute(request, lambda s=seq: self._stale(s)):
+                    if self._stale(seq):
+                        break
+                    self._on_partial(seq, request, part)
+            except BaseException as exc:  # reported, never kills the thread
+                if self._on_error is not None:
+                    self._on_error(seq, request, exc)
+            finally:
+                with self._cond:
+                    self._running = None
+                    self._cond.notify_all()
+
+    @property
+    def newest(self) -> int:
+        return self._seq
+
+
+class PropagationView:
+    """The map's actor and colour bar in ``plotter``, following ``state``'s source, yaw and height.
+
+    ``scene``: an ``avgs.SceneRenderer``. ``post``: runs a callable on the plotter's thread
+    (:func:`qt_poster` in the window). ``audio_busy``: True while the audio worker renders
+    (the map waits). ``size``: cells a side.
+    """
+
+    def __init__(self, plotter: pv.Plotter, scene: Any, state: ViewerState, mode: MapMode | str = MapMode.OFF,
+                 post: Callable[[Callable[[], None]], None] = _run_now, audio_busy: Callable[[], bool] | None = None,
+                 size: int = 64, on_status: Callable[[str], None] | None = None):
+        self.plotter, self.scene, self.state = plotter, scene, state
+        self.size = int(size)
+        self.floor_z = floor_height(scene)
+        self._post = post
+        self._on_status = on_status
+        self.mode = MapMode(mode)
+        self.latest = None  # the newest PropagationMap drawn (partial or complete)
+        self.latest_key = None  # (source, yaw, z) it was computed for
+        self._key = None  # (source, yaw, z) of the map in progress or shown
+        self._actor = None
+        self._mesh: pv.ImageData | None = None
+        self._shown_kind: str | None = None
+        self._lock = threading.Lock()
+        gate = None if audio_busy is None else (lambda: not audio_busy())
+        self.worker = MapWorker(self._compute, self._partial, self._failed, gate)
+        ev = state.events
+        self._subscriptions = [(ev.source, self._on_pose), (ev.yaw, self._on_pose), (ev.listener, self._on_pose)]
+        for event, cb in self._subscriptions:
+            event.connect(cb)
+        if self.mode is not MapMode.OFF:
+            self.request()
+
+    # ------------------------------------------------------------------ public
+    def set_mode(self, mode: MapMode | str) -> None:
+        """Off, level or ILD; a map already computed for this pose is reused for either kind."""
+        mode = MapMode(mode)
+        if mode is self.mode:
+            return
+        self.mode = mode
+        if mode is MapMode.OFF:
+            self.worker.cancel()
+            self._key = None
+            self._remove_actor()
+            self.plotter.render()
+            return
+        key = self._pose_key()
+        if self.latest is not None and self.latest_key == key:
+            self._draw(self.latest)
+            if self.latest.complete:
+                self._key = key
+                return
+        self.request(force=True)
+
+    def request(self, force: bool = False) -> int | None:
+        """Compute the map of the state's source, yaw and listener height (unless already under way)."""
+        key = self._pose_key()
+        if not force and key == self._key:
+            return None
+        self._key = key
+        return self.worker.submit(key)
+
+    def draw_now(self) -> Any:
+        """Compute the whole map on this thread and draw it (headless export); returns it."""
+        from avgs.propagation_map import compute_map
+
+        self.worker.cancel()
+        key = self._key = self._pose_key()
+        source, yaw, z = key
+        pmap = compute_map(self.scene, source=np.array(source), yaw=yaw, z=z, size=self.size)
+        self.latest, self.latest_key = pmap, key
+        if self.mode is not MapMode.OFF:
+            self._draw(pmap)
+        return pmap
+
+    def wait(self, timeout: float = 60.0) -> bool:
+        """Until no map is queued or computing (tests, headless export); False on timeout."""
+        return self.worker.wait_idle(timeout)
+
+    def values(self) -> np.ndarray | None:
+        """The [ny, nx] values on screen (filled where not yet computed), or None."""
+        if self.latest is None or self.mode is MapMode.OFF:
+            return None
+        return self.latest.filled(self.mode.value)
+
+    def close(self) -> None:
+        for event, cb in self._subscriptions:
+            event.disconnect(cb)
+        self._subscriptions = []
+        self.worker.close()
+
+    # ------------------------------------------------------------------ computing (worker thread)
+    def _pose_key(self):
+        s = self.state
+        return tuple(float(v) for v in s.source), float(s.yaw), float(s.listener[2])
+
+    def _compute(self, request, cancelled):
+        from avgs.propagation_map import propagation_map
+
+        source, yaw, z = request
+        return propagation_map(self.scene, source=np.array(source), yaw=yaw, z=z, size=self.size, batch=MAP_BATCH,
+                               cancel=cancelled)
+
+    def _partial(self, seq: int, request, pmap) -> None:
+        self._post(lambda: self._apply(seq, request, pmap))
+
+    def _failed(self, seq: int, request, exc: BaseException) -> None:
+        message = f"Propagation map failed: {type(exc).__name__}: {exc}"
+        if self._on_status is not None:
+            self._post(lambda: self._on_status(message))
+
+    # ------------------------------------------------------------------ drawing (plotter thread)
+    def _on_pose(self, _value: Any) -> None:
+        if self.mode is not MapMode.OFF and self._pose_key() != self._key:
+            self.request()
+
+    def _apply(self, seq: int, key, pmap) -> None:
+        if seq != self.worker.newest or self._subscriptions == []:
+            return  # a newer request (or closing) has replaced it
+        self.latest, self.latest_key = pmap, key
+        if self.mode is not MapMode.OFF:
+            self._draw(pmap)
+        if self._on_status is not None:
+            self._on_status(self.describe())
+
+    def describe(self) -> str:
+        """One line on the map shown: its progress, or its size and range."""
+        pmap = self.latest
+        if pmap is None or self.mode is MapMode.OFF:
+            return ""
+        ny, nx = pmap.grid.shape
+        if not pmap.complete:
+            return f"computing: {pmap.done} of {nx * ny} cells"
+        lo, hi = pmap.range(self.mode.value)
+        return f"{nx} x {ny} cells at z = {pmap.grid.z:.2f}: {lo:+.1f} .. {hi:+.1f} dB"
+
+    def _draw(self, pmap) -> None:
+        kind = self.mode.value
+        values = pmap.filled(kind)  # [ny, nx]
+        clim = colour_limits(values, kind)
+        if self._mesh is None or self._mesh.n_cells != values.size or self._shown_kind != kind:
+            self._remove_actor()
+            x0, x1, y0, y1 = pmap.grid.extent
+            ny, nx = values.shape
+            mesh = pv.ImageData(dimensions=(nx + 1, ny + 1, 1), spacing=((x1 - x0) / nx, (y1 - y0) / ny, 1.0),
+                                origin=(x0, y0, self.floor_z))
+            mesh.cell_data["map"] = values.ravel()  # x fastest, then y: the [iy, ix] order
+            self._mesh = mesh
+            self._actor = self.plotter.add_mesh(
+                mesh, scalars="map", cmap=CMAPS[kind], clim=clim, nan_opacity=0.0, opacity=MAP_OPACITY,
+                lighting=False, name="propagation_map", pickable=False, reset_camera=False,
+                show_scalar_bar=True,
+                scalar_bar_args=dict(title=bar_title(kind), vertical=True, position_x=0.86, position_y=0.3,
+                                     height=0.42, width=0.05, n_labels=5, fmt="%+.1f", color=(0.9, 0.9, 0.9),
+                                     title_font_size=16, label_font_size=14),
+            )
+            self._shown_kind = kind
+        else:
+            self._mesh.cell_data["map"] = values.ravel()
+            self._actor.mapper.scalar_range = clim
+        self.plotter.render()
+
+    def _remove_actor(self) -> None:
+        if self._actor is not None:
+            self.plotter.remove_actor(self._actor, render=False)
+            title = bar_title(self._shown_kind) if self._shown_kind else None
+            if title and title in self.plotter.scalar_bars:
+                self.plotter.remove_scalar_bar(title, render=False)
+        self._actor, self._mesh, self._shown_kind = None, None, None
+
+
+class ListenerInset:
+    """G seen from the listener, as an image in a corner of the 3D view; re-rendered on a
+    background thread after the listener stops (``settle_ms`` without a pose change).
+
+    ``load_view()``: returns an :class:`avgs.listener_view.ListenerView` or None (run once, on
+    the worker thread). ``timer``: a factory ``(ms, callback) -> object with start()/stop()``
+    (a Qt single-shot timer in the window); None renders on every pose change.
+    """
+
+    def __init__(self, plotter: pv.Plotter, state: ViewerState, load_view: Callable[[], Any],
+                 post: Callable[[Callable[[], None]], None] = _run_now, timer=None, settle_ms: int = 300,
+                 size: tuple[int, int] = (192, 144), corner: tuple[float, float] = (0.74, 0.01),
+                 extent: float = 0.25):
+        from .worker import RenderWorker
+
+        self.plotter, self.state = plotter, state
+        self.size = size
+        self._corner, self._extent = corner, extent
+        self._post = post
+        self._load_view = load_view
+        self._view = None
+        self._view_loaded = False
+        self.image: np.ndarray | None = None  # the newest [H, W, 3] uint8 shown
+        self.shown_pose = None
+        self._rep = None
+        self.available = True
+        self._timer = None if timer is None else timer(settle_ms, self.request)
+        self.worker = RenderWorker(self._render, self._rendered, self._failed, name="avgs-inset")
+        ev = state.events
+        self._subscriptions = [(ev.pose, self._on_pose), (ev.interacting, self._on_pose)]
+        for event, cb in self._subscriptions:
+            event.connect(cb)
+        self.request()
+
+    def request(self) -> None:
+        if self.state.interacting:
+            return  # rendered once the drag ends
+        s = self.state
+        self.worker.submit((tuple(float(v) for v in s.listener), float(s.yaw)))
+
+    def wait(self, timeout: float = 30.0) -> bool:
+        return self.worker.wait_idle(timeout)
+
+    def close(self) -> None:
+        for event, cb in self._subscriptions:
+            event.disconnect(cb)
+        self._subscriptions = []
+        if self._timer is not None:
+            self._timer.stop()
+        self.worker.close()
+
+    def _on_pose(self, _value: Any) -> None:
+        if self._timer is not None:
+            self._timer.start()
+        else:
+            self.request()
+
+    # worker thread
+    def _render(self, request):
+        if not self._view_loaded:
+            self._view, self._view_loaded = self._load_view(), True
+        if self._view is None:
+            return None
+        listener, yaw = request
+        return request, self._view.render(listener, yaw, *self.size)
+
+    def _rendered(self, seq, request, result) -> None:
+        if result is None:
+            self.available = False
+            return
+        self._post(lambda: self._show(*result))
+
+    def _failed(self, seq, request, exc) -> None:
+        self.available = False
+
+    # plotter thread
+    def _show(self, pose, image: np.ndarray) -> None:
+        if not self._subscriptions:
+            return
+        self.image, self.shown_pose = image, pose
+        self._rep = show_inset(self.plotter, image, self._rep, self._corner, self._extent)
+        self.plotter.render()
+
+
+def show_inset(plotter: pv.Plotter, image: np.ndarray, rep=None, corner=(0.74, 0.01), extent: float = 0.25):
+    """Show ``image`` [H, W, 3] uint8 in ``plotter``'s view, its lower left corner at ``corner``
+    and ``extent`` of the view's width wide (normalised viewport units); returns the VTK
+    representation to pass back for the next image (headless export can call this directly)."""
+    from vtkmodules.vtkInteractionWidgets import vtkLogoRepresentation
+
+    h, w, _ = image.shape
+    frame = image.copy()
+    frame[[0, -1]] = 200  # a thin light border
+    frame[:, [0, -1]] = 200
+    data = pv.ImageData(dimensions=(w, h, 1))
+    data.point_data["rgb"] = frame[::-1].reshape(-1, 3)  # VTK rows run bottom to top
+    if rep is None:
+        rep = vtkLogoRepresentation()
+        rep.SetRenderer(plotter.renderer)
+        rep.GetImageProperty().SetOpacity(1.0)
+        rep.GetBorderProperty().SetOpacity(0.0)
+        plotter.renderer.AddViewProp(rep)
+    win_w, win_h = plotter.window_size
+    height = extent * (h / w) * (win_w / max(win_h, 1))  # the image's own aspect
+    rep.SetPosition(*corner)
+    rep.SetPosition2(extent, height)
+    rep.SetImage(data)
+    rep.Modified()
+    plotter.add_text(INSET_CAPTION, position=(corner[0], corner[1] + height + 0.005), viewport=True, font_size=9,
+                     color=(0.85, 0.85, 0.85), name="listener_view_caption")
+    return rep
+
+
+class MapControls:
+    """The panel's "Propagation map" group (Off / Level / ILD and a progress line) and, per
+    scene, the :class:`PropagationView` and the :class:`ListenerInset` it drives (Qt)."""
+
+    def __init__(self, parent):
+        from PySide6 import QtCore, QtWidgets
+
+        self._parent = parent
+        self.combo = QtWidgets.QComboBox()
+        for mode, name in MODE_NAMES.items():
+            self.combo.addItem(name, mode.value)
+        self.note = QtWidgets.QLabel()
+        self.note.setWordWrap(True)
+        self.box = QtWidgets.QGroupBox("Propagation map (floor)")
+        layout = QtWidgets.QVBoxLayout(self.box)
+        layout.addWidget(self.combo)
+        layout.addWidget(self.note)
+        self.combo.currentIndexChanged.connect(self._changed)
+        self._post = qt_poster(parent)
+        self._qt_core = QtCore
+        self.view: PropagationView | None = None
+        self.inset: ListenerInset | None = None
+
+    @property
+    def mode(self) -> MapMode:
+        return MapMode(self.combo.currentData())
+
+    def set_mode(self, mode: MapMode | str) -> None:
+        self.combo.setCurrentIndex(self.combo.findData(MapMode(mode).value))
+
+    def install(self, plotter: pv.Plotter, scene: Any, state: ViewerState,
+                audio_busy: Callable[[], bool] | None = None) -> None:
+        """Draw into ``plotter`` for ``scene`` (an ``avgs.SceneRenderer``) and ``state``."""
+        self.teardown()
+        self.view = PropagationView(plotter, scene, state, mode=self.mode, post=self._post,
+                                    audio_busy=audio_busy, on_status=self.note.setText)
+        if scene.gaussians is not None and getattr(scene, "path", None) is not None:
+            path = scene.path
+            self.inset = ListenerInset(plotter, state, lambda: _load_listener_view(path), post=self._post,
+                                       timer=self._timer)
+
+    def teardown(self) -> None:
+        for part in (self.view, self.inset):
+            if part is not None:
+                part.close()
+        self.view = self.inset = None
+        self.note.clear()
+
+    def _changed(self, _index: int) -> None:
+        if self.view is not None:
+            self.view.set_mode(self.mode)
+            self.note.setText(self.view.describe())
+
+    def _timer(self, ms: int, callback: Callable[[], None]):
+        t = self._qt_core.QTimer(self._parent)
+        t.setSingleShot(True)
+        t.setInterval(ms)
+        t.timeout.connect(callback)
+        return t
+
+
+def _load_listener_view(path):
+    """:meth:`avgs.listener_view.ListenerView.load`, with no garbage collection while it runs: a
+    collection on a worker thread could delete Qt or VTK objects off the GUI thread (window.py)."""
+    import gc
+
+    from avgs.listener_view import ListenerView
+
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        return ListenerView.load(path)
+    finally:
+        if collecting:
+            gc.enable()

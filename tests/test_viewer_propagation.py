@@ -1,0 +1,192 @@
+"""The propagation map and the listener-view inset in the 3D view: off-screen, and in the real window."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from avgs import SceneRenderer
+from avgs_viewer.propagation_view import ListenerInset, MapMode, PropagationView, bar_title, floor_height
+from avgs_viewer.state import ViewerState
+
+DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
+pytestmark = pytest.mark.skipif(not DEMO.is_file(), reason="the bundled demo checkpoint is missing")
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    torch.set_num_threads(1)
+    return SceneRenderer.load(DEMO)
+
+
+def cell_pixels(img: np.ndarray, projector, pmap, floor_z: float, step: int = 3):
+    """[(value flat index, rgb)] of the screenshot at the projected centres of map cells."""
+    out = []
+    h = img.shape[0]
+    positions = pmap.grid.positions()
+    for flat in range(0, len(positions), step):
+        x, y = projector.to_display((positions[flat, 0], positions[flat, 1], floor_z))
+        col, row = int(round(x)), int(round(h - 1 - y))
+        if 0 <= row < h and 0 <= col < img.shape[1]:
+            out.append((flat, img[row, col, :3].astype(int)))
+    return out
+
+
+def assert_floor_coloured(before: np.ndarray, after: np.ndarray, projector, pmap, floor_z: float) -> None:
+    """The floor's cells changed from the dark background to colours ordered like the level."""
+    samples = cell_pixels(after, projector, pmap, floor_z)
+    old = dict(cell_pixels(before, projector, pmap, floor_z))
+    assert len(samples) > 30
+    changed = [flat for flat, rgb in samples if np.abs(rgb - old[flat]).sum() > 60]
+    assert len(changed) > 0.8 * len(samples)
+    values = pmap.level.ravel()
+    flats = np.array([f for f, _ in samples])
+    bright = np.array([rgb.sum() for _, rgb in samples])
+    assert np.corrcoef(values[flats], bright)[0, 1] > 0.5  # inferno: louder is brighter
+
+
+def test_map_drawn_off_screen_with_its_colour_bar(renderer, tmp_path):
+    import pyvista as pv
+
+    from avgs_viewer.scene_view import SceneView
+
+    r = renderer
+    state = ViewerState(r.bounds, r.source, listener=(6.5, 2.5, 1.6), yaw=90.0, has_rgb=True)
+    plotter = pv.Plotter(off_screen=True, window_size=[800, 600])
+    try:
+        view = SceneView(plotter, r, state)
+        view._points_actor.SetVisibility(False)  # the floor in full view
+        before = plotter.screenshot(return_img=True)
+        maps = PropagationView(plotter, r, state, mode=MapMode.LEVEL, size=16)
+        pmap = maps.draw_now()
+        assert pmap.complete and bar_title("level") in plotter.scalar_bars
+        after = plotter.screenshot(return_img=True)
+        assert_floor_coloured(before, after, view.projector(), pmap, floor_height(r))
+        Image.fromarray(after).save(tmp_path / "map.png")
+        maps.set_mode("ild")  # the same map, the other number: no recomputation
+        assert maps.latest is pmap and bar_title("ild") in plotter.scalar_bars
+        assert bar_title("level") not in plotter.scalar_bars
+        maps.set_mode("off")
+        assert not plotter.scalar_bars and "propagation_map" not in plotter.actors
+        maps.close()
+        view.close()
+    finally:
+        plotter.close()
+
+
+def test_newest_request_wins_and_stale_maps_are_dropped(renderer):
+    import pyvista as pv
+
+    r = renderer
+    state = ViewerState(r.bounds, r.source, listener=(2.0, 1.5, 1.6), yaw=0.0)
+    plotter = pv.Plotter(off_screen=True, window_size=[320, 240])
+    posted = []  # the "GUI thread": the test runs what the worker posts
+    try:
+        maps = PropagationView(plotter, r, state, mode="level", size=8, post=posted.append)
+        state.set_yaw(90.0)  # while the first map computes
+        state.set_listener((3.0, 2.0, 1.6))  # same height: no new map
+        assert maps.wait(120)
+        for fn in posted:
+            fn()
+        assert maps.latest.complete and maps.latest.yaw == 90.0 and maps.latest_key[1] == 90.0
+        assert maps.worker.newest == 2
+        drawn = maps._mesh.cell_data["map"]
+        assert np.allclose(drawn, maps.latest.level.ravel())
+        maps.close()
+    finally:
+        plotter.close()
+
+
+def test_listener_inset_shows_g_from_the_listener(renderer):
+    import pyvista as pv
+
+    from avgs.listener_view import ListenerView
+
+    r = renderer
+    state = ViewerState(r.bounds, r.source, listener=(2.0, 2.0, 1.6), yaw=0.0)
+    plotter = pv.Plotter(off_screen=True, window_size=[800, 600])
+    try:
+        plotter.set_background((0.1, 0.1, 0.1))
+        before = plotter.screenshot(return_img=True)
+        posted = []  # drawing runs on this thread, as the window's queued signal does it
+        inset = ListenerInset(plotter, state, lambda: ListenerView.load(DEMO), post=posted.append)
+        assert inset.wait(60) and posted
+        while posted:
+            posted.pop(0)()
+        assert inset.image is not None and inset.image.shape == (144, 192, 3)
+        after = plotter.screenshot(return_img=True)
+        corner = np.abs(after[-100:, -150:].astype(int) - before[-100:, -150:].astype(int)).sum(-1)
+        assert (corner > 60).mean() > 0.8  # the lower right corner now shows the image
+        state.set_yaw(180.0)
+        assert inset.wait(60) and posted
+        while posted:
+            posted.pop(0)()
+        assert inset.shown_pose[1] == 180.0
+        inset.close()
+    finally:
+        plotter.close()
+
+
+# -- the real window under Xvfb ------------------------------------------------------------
+
+
+@pytest.mark.gui
+def test_toggling_the_map_in_the_window_colours_the_floor(qtbot, tmp_path):
+    pytest.importorskip("pytestqt")
+    from PySide6 import QtWidgets
+
+    from avgs_viewer.window import MainWindow
+
+    w = MainWindow(start_audio=False)
+    qtbot.addWidget(w)
+    w.show()
+    with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
+        w.open_scene(DEMO)
+    try:
+        controls = w.map_controls
+        assert controls.box.parent() is not None and controls.mode is MapMode.OFF
+        controls.view.size = 16
+        w.view._points_actor.SetVisibility(False)  # the floor in full view
+        qtbot.waitUntil(lambda: controls.inset is not None and controls.inset.image is not None, timeout=60_000)
+        QtWidgets.QApplication.processEvents()
+        before = np.asarray(Image.open(w.export_screenshot(tmp_path / "off.png")))
+
+        controls.combo.setCurrentIndex(controls.combo.findData("level"))  # what a click on "Level (dB)" does
+        qtbot.waitUntil(lambda: controls.view.latest is not None and controls.view.latest.complete, timeout=120_000)
+        QtWidgets.QApplication.processEvents()
+        assert controls.note.text().startswith("16 x 16 cells")
+        after = np.asarray(Image.open(w.export_screenshot(tmp_path / "level.png")))
+        assert_floor_coloured(before, after, w.view.projector(), controls.view.latest, floor_height(w.renderer))
+        assert bar_title("level") in w.plotter.scalar_bars
+
+        seq = controls.view.worker.newest
+        w.state.set_yaw(w.state.yaw + 45.0)  # a new yaw: a new map
+        assert controls.view.worker.newest == seq + 1
+        controls.combo.setCurrentIndex(controls.combo.findData("off"))
+        assert "propagation_map" not in w.plotter.actors
+    finally:
+        w.close()
+
+
+@pytest.mark.gui
+def test_qt_poster_runs_on_the_gui_thread(qtbot):
+    pytest.importorskip("pytestqt")
+    import threading
+
+    from PySide6 import QtWidgets
+
+    from avgs_viewer.propagation_view import qt_poster
+
+    parent = QtWidgets.QWidget()
+    qtbot.addWidget(parent)
+    post = qt_poster(parent)
+    ran = []
+    worker = threading.Thread(target=lambda: post(lambda: ran.append(threading.current_thread())))
+    worker.start()
+    worker.join()
+    qtbot.waitUntil(lambda: bool(ran), timeout=5000)
+    assert ran == [threading.main_thread()]

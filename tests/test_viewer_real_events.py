@@ -1,0 +1,158 @@
+"""The real window driven by real window-system events (XTEST through the X server, as
+``xdotool`` sends them) on the bundled demo scene: what the user sees (pixels of the view)
+and hears (the audio engine's output, pulled by the simulated sound-card clock).
+Timings live in the benchmark (``avgs-viewer --bench``), not here."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pytestqt")
+from PySide6 import QtCore, QtWidgets  # noqa: E402
+
+from avgs_viewer.window import MainWindow  # noqa: E402
+
+pytestmark = pytest.mark.gui
+DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
+
+
+@pytest.fixture(scope="module")
+def x():
+    from avgs_viewer.xinput import XInput
+
+    if not os.environ.get("DISPLAY"):
+        pytest.skip("needs an X display (pytest-xvfb or xvfb-run)")
+    with XInput() as conn:
+        yield conn
+
+
+@pytest.fixture
+def window(qtbot, x):
+    if not DEMO.is_file():
+        pytest.skip("the bundled demo scene is missing (scripts/make_demo.sh)")
+    w = MainWindow()
+    qtbot.addWidget(w)
+    w.move(0, 0)
+    w.show()
+    w.activateWindow()
+    qtbot.waitActive(w)
+    with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
+        w.open_scene(DEMO)
+    settle(qtbot, w)
+    yield w
+    w.close()
+
+
+def settle(qtbot, w: MainWindow) -> None:
+    """Until the newest pose's filter is playing and shown."""
+    def done():
+        assert w.live.worker.wait_idle(0.01)
+        assert w.live.heard is not None and w.live.heard.request.seq == w.live.seq
+        assert w.engine.live_tag == w.live.seq  # its blocks are leaving the engine
+        assert not w._show_timer.isActive()
+    qtbot.waitUntil(done, timeout=30_000)
+    qtbot.wait(100)
+
+
+def screen_xy(w: MainWindow, world) -> tuple[float, float]:
+    p = w.view.projector().to_display(np.asarray(world, dtype=np.float64))
+    scale = w.plotter.devicePixelRatioF()
+    g = w.plotter.mapToGlobal(QtCore.QPointF(p[0] / scale, w.plotter.height() - 1 - p[1] / scale))
+    return g.x(), g.y()
+
+
+def heard_ild(qtbot, w: MainWindow, seconds: float = 1.0) -> float:
+    """Left minus right level (dB) of the engine's output blocks over ``seconds``."""
+    diffs = []
+    t_end = time.perf_counter() + seconds
+    while time.perf_counter() < t_end:
+        left, right = w.engine.block_levels
+        if min(left, right) > -70:
+            diffs.append(left - right)
+        qtbot.wait(15)
+    assert len(diffs) > 10, "the engine is not playing"
+    return float(np.median(diffs))
+
+
+def blue_pixels_near(w: MainWindow, world, reach: int = 8) -> int:
+    """Pixels of the listener's blue within ``reach`` of ``world``'s projection in the view as drawn."""
+    w.plotter.render_now()
+    img = w.plotter.grabFramebuffer()  # what the widget shows
+    img = img.convertToFormat(img.Format.Format_RGB888)
+    arr = np.array(img.constBits(), dtype=np.uint8)
+    arr = arr.reshape(img.height(), img.bytesPerLine())[:, : 3 * img.width()].reshape(img.height(), img.width(), 3)
+    p = w.view.projector().to_display(np.asarray(world, dtype=np.float64))
+    ratio = img.height() / w.plotter.render_window.GetSize()[1]
+    cx, cy = int(p[0] * ratio), int(img.height() - 1 - p[1] * ratio)
+    patch = arr[max(0, cy - reach): cy + reach, max(0, cx - reach): cx + reach].astype(int)
+    return int(np.sum((patch[..., 2] > 150) & (patch[..., 2] - patch[..., 0] > 80)))
+
+
+def test_a_real_drag_moves_the_listener_on_screen_and_in_the_ears(qtbot, window, x):
+    w = window
+    source = w.state.source
+    z = w.state.listener[2]
+    w.state.set_yaw(90.0)  # facing +y: a source at larger x is on the listener's right
+    w.state.set_listener((source[0] - 1.2, source[1], z))
+    settle(qtbot, w)
+    before = heard_ild(qtbot, w)
+    assert before < -0.5  # the right ear is louder
+
+    target = np.array([source[0] + 1.2, source[1], z])
+    start, end = screen_xy(w, w.state.listener), screen_xy(w, target)
+    x.press(*start)
+    qtbot.waitUntil(lambda: w.drag.dragging == "listener", timeout=5000)
+    assert w.state.interacting
+    for t in np.linspace(0, 1, 10)[1:-1]:
+        x.move(start[0] + t * (end[0] - start[0]), start[1] + t * (end[1] - start[1]))
+        qtbot.wait(20)
+    x.release(*end)
+    qtbot.waitUntil(lambda: w.drag.dragging is None, timeout=5000)
+    assert not w.state.interacting
+    assert w.state.listener[:2] == pytest.approx(target[:2], abs=0.1) and w.state.listener[2] == z
+    settle(qtbot, w)
+    after = heard_ild(qtbot, w)
+    assert after > 0.5 and after - before > 2.0  # the source is now on the left: the left ear is louder
+    assert blue_pixels_near(w, w.state.listener) > 20  # the sphere is drawn where it was dropped
+    assert blue_pixels_near(w, (source[0] - 1.2, source[1], z)) == 0  # and no longer where it was
+
+
+def test_keys_turn_the_listener_and_pause_the_sound(qtbot, window, x):
+    w = window
+    w.plotter.setFocus()
+    yaw = w.state.yaw
+    x.key("q")
+    qtbot.waitUntil(lambda: w.state.yaw == pytest.approx((yaw + 15.0) % 360), timeout=5000)
+    x.key("Right")
+    qtbot.waitUntil(lambda: w.state.yaw == pytest.approx(yaw % 360), timeout=5000)
+    settle(qtbot, w)
+    assert w.engine.block_levels[0] > -70  # playing
+    x.key("space")
+    qtbot.waitUntil(lambda: not w.state.playing, timeout=5000)
+    qtbot.waitUntil(lambda: max(w.engine.block_levels) <= -120, timeout=2000)  # ramped down to silence
+    assert w.panel.play.text() == "Play"
+    qtbot.waitUntil(lambda: not w.meter_timer.isActive(), timeout=2000)  # no meter polling while silent
+    x.key("space")
+    qtbot.waitUntil(lambda: w.engine.block_levels[0] > -70, timeout=2000)
+
+
+def test_a_typed_position_is_heard(qtbot, window, x):
+    w = window
+    panel = getattr(w, "pose", None) or getattr(w.panel, "pose", None)
+    if panel is None:
+        pytest.skip("no pose panel in this window")
+    box = panel.listener[0]
+    target = float(np.round(np.mean(w.state.bounds[:, 0]) + 0.3, 2))
+    box.setFocus()
+    box.selectAll()
+    qtbot.waitUntil(box.hasFocus, timeout=5000)
+    x.type(f"{target:.2f}\n")
+    qtbot.waitUntil(lambda: w.state.listener[0] == pytest.approx(target, abs=0.01), timeout=5000)
+    settle(qtbot, w)
+    assert w.live.heard.request.pose.listener[0] == pytest.approx(target, abs=0.01)
+    QtWidgets.QApplication.processEvents()
