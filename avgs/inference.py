@@ -40,7 +40,7 @@ import torch
 from avgs import dsp
 from avgs.data.frame import signed_direction
 from avgs.acoustics.impulse_response import TailShaper, convolve, impulse_response
-from avgs.acoustics.synthesis import Masks, ear_gains, ear_spectrogram, waveform
+from avgs.acoustics.synthesis import Masks, ear_gains, ear_magnitudes, ear_spectrogram, waveform
 from avgs.streaming import unit_phase
 from avgs.checkpoint import config_of, load_checkpoint, stft_of
 from avgs.config import SynthesisConfig
@@ -384,18 +384,24 @@ class SceneRenderer:
             pieces = self._pieces(x.size, m32, synthesis, whole=magnitudes)
         for lo, hi, start, stop in pieces:
             piece = torch.from_numpy(x[start:stop] / np.float32(scale)).to(self.device)  # [stop - start]
-            spec = dsp.stft(piece[None], self.stft)  # [1, F, N]
-            ears = ear_spectrogram(spec, m32, self.post_conv, start // self.stft.hop_length)  # [1, 2, F, N]
+            if filtered is None:  # the source's phase
+                ears = ear_spectrogram(dsp.stft(piece[None], self.stft), m32, self.post_conv,
+                                       start // self.stft.hop_length)  # [1, 2, F, N]
+                target = ears[0].abs() if magnitudes else None
+            else:  # the predicted magnitudes with the filter's phase: the input and its filtered copy in one STFT
+                both = torch.cat([piece[None], filtered[:, start:stop].to(self.device)])  # [3, stop - start]
+                spec = dsp.stft(both, self.stft)  # [3, F, N]
+                _, s_l, s_r = ear_magnitudes(spec[:1].abs(), m32)
+                target = torch.cat([s_l, s_r])  # [2, F, N]
+                ears = (target * unit_phase(spec[1:]))[None]  # [1, 2, F, N]
             if magnitudes:
-                mags = np.ascontiguousarray((ears[0].abs().double().cpu().numpy() * scale).astype(np.float32))
+                mags = np.ascontiguousarray((target.double().cpu().numpy() * scale).astype(np.float32))
             if synthesis.method == "filter" and filtered is not None:
                 break
-            if filtered is not None:  # the predicted magnitudes with the filter's phase
-                ears = ears.abs() * unit_phase(dsp.stft(filtered[:, start:stop].to(self.device), self.stft))
             wave = waveform(ears, stop - start, self.stft, synthesis)[0]  # [2, stop - start]
             y[:, lo:hi] = wave[:, lo - start : hi - start].float().cpu().numpy()
             top = max(top, _peak(y[:, lo:hi]))  # NaN once any sample is not finite
-            del piece, spec, ears, wave
+            del piece, ears, wave
         return y, mags, top
 
     def _impulse(self, m: Masks) -> np.ndarray:

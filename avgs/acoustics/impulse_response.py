@@ -84,7 +84,7 @@ def minimum_phase(gain: torch.Tensor, n_fft: int, oversample: int = OVERSAMPLE) 
 def tail_frames(decay: torch.Tensor, hop_seconds: float) -> int:
     """STFT frames the tail lasts: until ``max_f decay_f^k < TAIL_FLOOR``, at most ``MAX_TAIL_SECONDS``."""
     w = float(decay.detach().max())
-    cap = max(2, int(MAX_TAIL_SECONDS / hop_seconds))
+    cap = max(2, int(MAX_TAIL_SECONDS / hop_seconds))  # (cap - 1) hops fit in MAX_TAIL_SECONDS
     if w <= 0.0:
         return 2
     if w >= 1.0:
@@ -93,11 +93,16 @@ def tail_frames(decay: torch.Tensor, hop_seconds: float) -> int:
 
 
 @functools.lru_cache(maxsize=4)
-def _noise_spectrogram(n_frames: int, stft: STFTConfig, device: str) -> torch.Tensor:
-    """STFT [2, F, n_frames] (complex128) of two independent unit-variance white noises (the ears' tails)."""
+def _noise(stft: STFTConfig) -> torch.Tensor:
+    """Two independent unit-variance white noises [2, MAX_TAIL_SECONDS] (the ears' tails), float64:
+    one draw per process, cut to each scene's tail, so a tail is the same whatever its length or dtype."""
     g = torch.Generator().manual_seed(TAIL_SEED)
-    noise = torch.randn(2, (n_frames - 1) * stft.hop_length, generator=g, dtype=torch.float64)
-    return dsp.stft(noise, stft).to(device)  # [2, F, n_frames]
+    return torch.randn(2, int(MAX_TAIL_SECONDS * stft.sample_rate), generator=g, dtype=torch.float64)
+
+
+def _noise_spectrogram(n_frames: int, stft: STFTConfig) -> torch.Tensor:
+    """STFT [2, F, n_frames] (complex128) of the tails' noise, its first ``(n_frames - 1) hop`` samples."""
+    return dsp.stft(_noise(stft)[:, : (n_frames - 1) * stft.hop_length], stft)  # [2, F, n_frames]
 
 
 class TailShaper:
@@ -118,7 +123,7 @@ class TailShaper:
         envelope = torch.where(k > 0, w ** (0.5 * k), torch.zeros(()))  # [F, K], nothing at k = 0 (the direct part)
         window_power = float(dsp._window(stft.win_length, "cpu", torch.float64).square().sum())
         # E|N(f, k)|^2 = sum(w^2), so |T(f, k)|^2 = r^2 w^k sum(w^2) / hop in expectation: energy r^2 w / (1 - w) per bin.
-        noise = _noise_spectrogram(self.frames, stft, "cpu")  # [2, F, K]
+        noise = _noise_spectrogram(self.frames, stft)  # [2, F, K]
         # One draw of noise puts more energy in some bins than others (each bin's energy is
         # a sum of a few random terms): scale each bin to its expected energy, so the tail
         # colours nothing the masks do not.

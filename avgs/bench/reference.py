@@ -13,8 +13,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from avgs import dsp
-from avgs.acoustics.synthesis import binaural_waveform
 
 
 class UncachedPath:
@@ -33,10 +31,8 @@ class UncachedPath:
             lis, theta, src = r.pose(listener, yaw)
             masks = r.model.masks(lis, theta, src)
         with torch.inference_mode():
-            masks = masks.to(torch.float32)
-            spec = dsp.stft(torch.from_numpy(mono / np.float32(peak)).to(r.device)[None], r.stft)
-            y = binaural_waveform(spec, masks, mono.size, r.stft, r.post_conv, r.synthesis)[0]
-            return y.float().cpu().numpy() * np.float32(peak)
+            y, _, _ = r._synthesise(np.asarray(mono, dtype=np.float32), peak, masks.to(torch.float32), r.synthesis)
+            return y * np.float32(peak)
 
 
 class TrainingModePath(UncachedPath):
