@@ -79,6 +79,10 @@ class GaussianConfig:
     "Initial points sampled from the scene geometry or a random box."
     image_downscale: int = field(default=1, metadata={"flag": "image-downscale"})
     "Train on frames downscaled by this factor."
+    cpu_max_pixels: int = 128 * 96
+    "On the CPU with image downscale 1: train on frames shrunk to at most this many pixels, minutes instead of hours (0: as they are)."
+    cpu_max_gaussians: int = 20_000
+    "On the CPU, when the frames were shrunk for it: at most this many Gaussians."
     backend: Literal["auto", "torch", "gsplat"] = "auto"
     "Rasterizer: gsplat when CUDA is present, else our pure-PyTorch rasterizer."
     log_every: int = 100
@@ -231,6 +235,8 @@ class TrainConfig:
             (g.iterations >= 0, "stage1 iterations", g.iterations, ">= 0"),
             (g.image_downscale >= 1, "image downscale", g.image_downscale, ">= 1"),
             (g.max_gaussians >= 1, "max gaussians", g.max_gaussians, ">= 1"),
+            (g.cpu_max_pixels >= 0 and g.cpu_max_gaussians >= 1, "stage1 CPU budget (pixels, Gaussians)",
+             (g.cpu_max_pixels, g.cpu_max_gaussians), ">= 0 and >= 1"),
             (0 < a.vicinity_percentile <= 100, "vicinity percentile", a.vicinity_percentile, "in (0, 100]"),
             (a.direction_harmonics >= 1, "direction harmonics", a.direction_harmonics, ">= 1"),
             (a.position_frequencies >= 0, "position frequencies", a.position_frequencies, ">= 0"),
@@ -284,7 +290,10 @@ class SynthesisConfig:
             raise ValueError(f"phase_iterations must be >= 0, got {self.phase_iterations}")
 
 
-ADDED_LATER = {"acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False}}
+ADDED_LATER = {
+    "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False},
+    "gaussians": {"cpu_max_pixels": 0},
+}
 "Fields absent from older stored configurations, with the value that the older code used."
 
 RETIRED = {

@@ -6,6 +6,7 @@ import json
 
 import pytest
 
+from avgs.bench.latency import SYNTHESES
 from avgs.bench.report import SECTIONS, headline
 from avgs.bench.speed_error import simulator_available, summarise
 from avgs.cli import main as cli_main
@@ -32,7 +33,10 @@ def test_bench_quick_writes_the_report(tmp_path, capsys):
     for png in ("latency.png", "speed_error.png", "points.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     results = json.loads((out / "results.json").read_text())
-    assert set(results["latency"]["cpu"]["stages"]) == {"vicinity", "field", "binauralizer", "stft", "synthesis"}
+    assert set(results["latency"]["cpu"]["stages"]) == {"vicinity", "field", "binauralizer", "impulse response", "synthesis"}
+    assert set(results["latency"]["cpu"]["syntheses"]) == set(SYNTHESES)
+    for label in SYNTHESES:  # each synthesis timed on the demo and scored on the bench's scene
+        assert label in report
     assert set(results["latency"]["cpu"]["long"]) == {"10", "60"}
     for path in results["latency"]["cpu"]["paths"].values():  # the same model code without its caches
         assert path["max_abs_diff"] < 1e-4

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from avgs.bench.timing import Stopwatch, Timing, time_calls
+from avgs.config import SynthesisConfig
 
 def _sync(device) -> None:
     if torch.device(device).type == "cuda":
@@ -41,6 +42,18 @@ def time_render(render, poses, mono, repeats: int, warmup: int = 3, device="cpu"
         render(lis, yaw, mono)
 
     return time_calls(call, repeats=repeats, warmup=warmup, sync=lambda: _sync(device))
+
+
+SYNTHESES = {
+    "filter": SynthesisConfig(method="filter"),
+    "filter phase (default)": SynthesisConfig(),
+    "filter phase + 2 iterations": SynthesisConfig(phase_iterations=2),
+    "filter phase + 8 iterations": SynthesisConfig(phase_iterations=8),
+    "source phase": SynthesisConfig(phase="source"),
+    "source phase + 2 iterations": SynthesisConfig(phase="source", phase_iterations=2),
+    "source phase + 8 iterations": SynthesisConfig(phase="source", phase_iterations=8),
+}
+"The syntheses `avgs bench` compares (:class:`avgs.config.SynthesisConfig`): time on the demo, error on the bench's scenes."
 
 
 def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
@@ -126,6 +139,12 @@ def measure(renderer, repeats: int = 50, long_seconds=(10.0, 60.0), long_repeats
             t = time_render(path.render, poses, mono, n, device=dev)
             err = max(float(np.max(np.abs(path.render(l, y, mono) - renderer.render(l, y, mono).binaural))) for l, y in poses[:4])
             out.setdefault("paths", {})[path_cls.name] = {**t.to_dict(), "max_abs_diff": err}
+    out["syntheses"] = {}
+    for label, synthesis in SYNTHESES.items():  # each synthesis, the same poses
+        say(f"latency ({dev}): synthesis {label}")
+        t = time_render(lambda l, y, m, s=synthesis: renderer.render(l, y, m, synthesis=s), poses, mono,
+                        max(5, repeats // 2), device=dev)
+        out["syntheses"][label] = t.to_dict()
     out["long"] = {}
     for seconds in long_seconds:
         say(f"latency ({dev}): {seconds:g} s of audio")

@@ -217,6 +217,12 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
                              _f(t["max_abs_diff"], "{:.1e}")])
             rows.append([dev, "**cached (render)**", f"**{now:.2f}**", _f(d["render"]["p95_ms"], "{:.2f}"), "1.0x", "0"])
         L += _table(["device", "path", "median ms", "p95 ms", "time vs cached", "max abs diff"], rows)
+        L += ["", "Each synthesis (`--synthesis`, `--phase`, `--phase-iterations`), the same poses; their error on "
+                  "the bench's scenes is in the speed-against-error table:", ""]
+        rows = [[dev, label, _f(t["median_ms"], "{:.2f}"), _f(t["p95_ms"], "{:.2f}"),
+                 f"{t['median_ms'] / d['render']['median_ms']:.2f}x"]
+                for dev, d in lat.items() for label, t in d.get("syntheses", {}).items()]
+        L += _table(["device", "synthesis", "median ms", "p95 ms", "time vs default"], rows)
         L += ["", "Long inputs (one call, any length: the masks are time-invariant):", ""]
         rows = [[dev, f"{s} s", _f(t["median_ms"], "{:.1f}"), f"{t['realtime_factor']:.0f}x"] for dev, d in lat.items()
                 for s, t in d.get("long", {}).items()]
@@ -272,10 +278,12 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
     L += ["## Training throughput", ""]
     tr = results.get("training", [])
     if tr:
-        rows = [[t.get("stage"), t.get("device"), t.get("points", t.get("gaussians", "")), t.get("iterations"),
-                 t.get("error") or _f(t.get("it_per_s"), "{:.1f}"), _f(t.get("peak_mb"), "{:.0f}"), t.get("peak_note", "")]
+        rows = [[t.get("stage"), t.get("device"), t.get("init", ""), t.get("points", t.get("gaussians", "")),
+                 t.get("iterations"), t.get("error") or _f(t.get("it_per_s"), "{:.1f}"), _f(t.get("peak_mb"), "{:.0f}"),
+                 t.get("peak_note", "")]
                 for t in tr]
-        L += _table(["stage", "device", "points / Gaussians", "iterations timed", "it/s", "peak MB", "peak is"], rows)
+        L += _table(["stage", "device", "initial points", "points / Gaussians", "iterations timed", "it/s", "peak MB",
+                     "peak is"], rows)
         L += [""]
     else:
         L += ["(not run)", ""]

@@ -6,7 +6,7 @@ Every point is (latency per pose, MAG, ENV) on a scene's val clips:
 - AV-GS at vicinity 5/10/15/20/25 % (one model trained per setting);
 - AV-GS at point budgets: the 15 % model pruned exactly to the walkable area
   (:mod:`avgs.prune`), then random subsets of it (k at 15 % of the subset);
-- AV-GS with each synthesis of :data:`SYNTHESES` (the 15 % model): the pose's filter, and the
+- AV-GS with each synthesis of :data:`avgs.bench.latency.SYNTHESES` (the 15 % model): the pose's filter, and the
   predicted magnitudes with the filter's or the source's phase and 0, 2 or 8 phase iterations;
 - AV-GS in reduced precision (bfloat16 on the CPU, float16 on CUDA) where it runs;
 - the simulator that made the scene (pyroomacoustics, image-source order 0..10, with
@@ -30,23 +30,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from avgs.bench.latency import random_poses, test_signal, time_render, with_precision
+from avgs.bench.latency import SYNTHESES, random_poses, test_signal, time_render, with_precision
 from avgs.bench.timing import Timing
 from avgs.config import STFT, SynthesisConfig
 
 VICINITIES = (5.0, 10.0, 15.0, 20.0, 25.0)
 BUDGET_FRACTIONS = (0.5, 0.25, 0.1, 0.05)
 SIM_ORDERS = tuple(range(11))
-SYNTHESES = {
-    "filter": SynthesisConfig(method="filter"),
-    "filter phase": SynthesisConfig(),
-    "filter phase + 2 iterations": SynthesisConfig(phase_iterations=2),
-    "filter phase + 8 iterations": SynthesisConfig(phase_iterations=8),
-    "source phase": SynthesisConfig(phase="source"),
-    "source phase + 2 iterations": SynthesisConfig(phase="source", phase_iterations=2),
-    "source phase + 8 iterations": SynthesisConfig(phase="source", phase_iterations=8),
-}
-"Syntheses compared on the 15 % model (the default's row is the vicinity row)."
+
 
 
 # -- models --------------------------------------------------------------------------

@@ -1,9 +1,10 @@
 """Both stages end to end: scene folder in, ``scene.ckpt`` (+ log + curves) out.
 
 Stage 1 warms up the 3D-GS scene G on the RGB key frames (:mod:`avgs.gaussians`);
-G_a is initialised from it (``init="gs"``) or straight from the scene's geometry points
-(``init="sfm"``, scenes with a scene.json only). Stage 2 (:mod:`avgs.train.stage2`)
-trains G_a, F and B on the audio clips, saving the checkpoint atomically every
+G_a is initialised from it (``init="gs"``) or straight from its initial points
+(``init="sfm"``): the scene's surfaces from scene.json, or, on a scene without them, SfM
+points triangulated from the frames with their known poses
+(:func:`avgs.train.stage1.initial_points`). Stage 2 (:mod:`avgs.train.stage2`) trains G_a, F and B on the audio clips, saving the checkpoint atomically every
 ``checkpoint_every`` iterations; ``resume=True`` continues from the last one.
 
 Resuming is exact: the checkpoint's ``train_state`` holds the whole training state
@@ -30,11 +31,13 @@ from avgs.config import TrainConfig
 from avgs.train.logging import JsonLinesLog, log_paths, plot_curves
 from avgs.train.stage1 import (
     audio_points_from,
-    geometry_points,
+    cpu_stage1_budget,
+    initial_points,
     load_stage1,
     needs_gaussians,
     reusable,
     save_stage1,
+    stage1_init_source,
     stage1_path,
     train_stage1,
 )
@@ -58,25 +61,55 @@ def _stage1(scene, cfg: TrainConfig, log: JsonLinesLog, progress: bool, cache: P
     """(AudioPoints, gaussians dict or None): stage 1 as ``cfg.init`` and ``cfg.store_gaussians`` ask.
 
     G comes from ``given`` (a stage-1 file), else from ``cache`` when it was made for this
-    scene and these settings, else it is trained and written to ``cache``.
+    scene and these settings, else it is trained and written to ``cache``. The initial points
+    (scene.json's surfaces or SfM points) are made once, when G_a or a new G needs them.
     """
-    # Geometry points seed G_a only with --init sfm (stage 1 samples its own init points).
-    geometry = geometry_points(scene.root, scene.metadata, cfg) if cfg.init == "sfm" else None
+    source = stage1_init_source(scene.metadata, cfg)
+    log.write({"stage": "stage1", "event": "init_source", "source": source, "init": cfg.init})
+    made: list = []
+
+    def init():
+        if not made:
+            made.append(initial_points(scene.root, scene.metadata, cfg, progress=progress,
+                                       log_fn=lambda r: log.write({"stage": "stage1", **r})))
+        return made[0]
+
     gaussians = None
     if needs_gaussians(cfg):
         data = load_stage1(given) if given is not None else (load_stage1(cache) if cache.is_file() else None)
         if given is not None and data.get("scene") != scene.name:
             raise ValueError(f"{given}: stage 1 of scene {data.get('scene')!r}, not of {scene.name!r}")
-        if data is not None and (given is not None or reusable(data, scene.name, cfg)):
+        reuse = data is not None and (given is not None or reusable(data, scene.name, cfg, source))
+        if not reuse and _apply_cpu_budget(scene.root, cfg, log.write, progress):
+            reuse = data is not None and reusable(data, scene.name, cfg, source)
+        if reuse:
             for record in data.get("history", []):
                 log.write(record)
             log.write({"stage": "stage1", "event": "reused", "file": str(given or cache)})
             gaussians = data["gaussians"]
         else:
-            gaussians, stats, history = _train_stage1_logged(scene.root, cfg, progress, log.write)
+            gaussians, stats, history = _train_stage1_logged(scene.root, cfg, progress, log.write, init())
             save_stage1(cache, scene.name, cfg, gaussians, stats, history)
-    points = audio_points_from(gaussians if cfg.init == "gs" else None, geometry, cfg)
+    points = audio_points_from(gaussians if cfg.init == "gs" else None, init() if cfg.init == "sfm" else None, cfg)
     return points, (gaussians if cfg.store_gaussians else None)
+
+
+def _apply_cpu_budget(scene_dir: Path, cfg: TrainConfig, sink, progress: bool) -> bool:
+    """Set stage 1's CPU budget on ``cfg`` (in place, so that the stored configuration and the
+    stage-1 key say what G was trained with) when it applies
+    (:func:`avgs.train.stage1.cpu_stage1_budget`); True when it did, and says so."""
+    budget = cpu_stage1_budget(scene_dir, cfg)
+    if budget is None:
+        return False
+    cfg.gaussians.image_downscale, cfg.gaussians.max_gaussians = budget["image_downscale"], budget["max_gaussians"]
+    if sink is not None:
+        sink({"stage": "stage1", "event": "cpu_budget", **budget})
+    if progress:
+        from tqdm.auto import tqdm
+
+        tqdm.write(f"stage 1 on the CPU: frames shrunk {budget['image_downscale']}x, at most {budget['max_gaussians']} "
+                   "Gaussians (--stage1-image-downscale N > 1 sets the size; CUDA trains at full size)")
+    return True
 
 
 def run_stage1_only(scene_dir: str | Path, out: str | Path, cfg: TrainConfig | None = None, *, progress: bool = True) -> Path:
@@ -86,12 +119,14 @@ def run_stage1_only(scene_dir: str | Path, out: str | Path, cfg: TrainConfig | N
     scene_dir = Path(scene_dir).resolve()
     if not scene_dir.is_dir():
         raise FileNotFoundError(f"{scene_dir}: scene folder missing")
+    _apply_cpu_budget(scene_dir, cfg, None, progress)
     gaussians, stats, history = _train_stage1_logged(scene_dir, cfg, progress)
     return save_stage1(stage1_path(out), scene_dir.name, cfg, gaussians, stats, history)
 
 
-def _train_stage1_logged(scene_dir: Path, cfg: TrainConfig, progress: bool, sink=None):
-    """Train G; returns ``(gaussians, stats, history)``, each history record also sent to ``sink``."""
+def _train_stage1_logged(scene_dir: Path, cfg: TrainConfig, progress: bool, sink=None, init=None):
+    """Train G (from ``init`` points when given); returns ``(gaussians, stats, history)``, each
+    history record also sent to ``sink``."""
     history: list[dict] = []
 
     def record(r: dict) -> None:
@@ -99,7 +134,7 @@ def _train_stage1_logged(scene_dir: Path, cfg: TrainConfig, progress: bool, sink
         if sink is not None:
             sink(history[-1])
 
-    gaussians, stats = train_stage1(scene_dir, cfg, progress=progress, log_fn=record)
+    gaussians, stats = train_stage1(scene_dir, cfg, progress=progress, log_fn=record, init=init)
     record({"event": "trained", **{k: v for k, v in stats.items() if k != "backend"}, "backend": str(stats.get("backend"))})
     return gaussians, stats, history
 

@@ -1,5 +1,12 @@
 """Stage 1 of the pipeline: G (3D-GS) warmed up on a scene's RGB key frames, and G_a from it.
 
+G starts from points on the scene's surfaces when scene.json has them (our generated
+scenes); on a scene without them (a real recording) from SfM points triangulated from the
+frames with their known poses under ``--init sfm`` (:mod:`avgs.gaussians.sfm`, as 3D-GS
+and the paper start from SfM points), else from random points along the training rays.
+:func:`stage1_init_source` names the choice and every run logs it. On the CPU, a stage 1 at
+the paper's full frame size trains within a budget instead (:func:`cpu_stage1_budget`).
+
 Stage 1 reads only the frames, the poses and scene.json (never the audio), so it can run
 on its own, e.g. on a GPU machine with gsplat, and hand its result to stage 2 elsewhere.
 Its result is kept in a small file next to the checkpoint (``scene.ckpt.stage1.pt``):
@@ -8,7 +15,8 @@ a later run of the same scene and stage-1 settings reuses it instead of training
 between several stage-2 runs (the ablations).
 
 The file is a ``torch.save`` dict of tensors and plain values (``weights_only`` loadable):
-``format``, ``version``, ``scene`` (folder name), ``key`` (the settings it depends on),
+``format``, ``version``, ``scene`` (folder name), ``key`` (the settings it depends on, with
+``init_points_from: "sfm"`` when G started from SfM points),
 ``gaussians`` (:meth:`avgs.gaussians.model.GaussianModel.to_dict`), ``stats``, ``history``.
 """
 
@@ -35,11 +43,17 @@ def stage1_path(checkpoint: str | Path) -> Path:
     return ckpt.with_name(ckpt.name + ".stage1.pt")
 
 
-def stage1_key(cfg: TrainConfig) -> dict:
-    """The settings G depends on: the 3D-GS config and the seed (plain values)."""
+
+
+def stage1_key(cfg: TrainConfig, init_source: str | None = None) -> dict:
+    """The settings G depends on: the 3D-GS config, the seed and, for SfM points, that source
+    (plain values; the key of a G from scene.json or random points is what it always was)."""
     g = dataclasses.asdict(cfg.gaussians)
     g.pop("backend", None)  # either rasterizer trains the same model
-    return {"gaussians": g, "seed": int(cfg.seed)}
+    key = {"gaussians": g, "seed": int(cfg.seed)}
+    if init_source == "sfm":
+        key["init_points_from"] = "sfm"
+    return key
 
 
 def needs_gaussians(cfg: TrainConfig) -> bool:
@@ -47,19 +61,77 @@ def needs_gaussians(cfg: TrainConfig) -> bool:
     return cfg.init == "gs" or cfg.store_gaussians
 
 
-def geometry_points(scene_dir: Path, metadata: dict | None, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray] | None:
-    """Points on the scene's surfaces ``([n, 3] normalised, [n, 3] RGB)`` from scene.json, or None."""
-    if metadata is None or not metadata.get("surfaces"):
-        if cfg.init == "sfm":
-            raise ValueError(
-                f"{scene_dir}: --init sfm needs the scene's geometry points (scene.json 'surfaces'), which this "
-                "scene does not have (real RWAVS scenes); use --init gs"
-            )
-        return None
-    from avgs.data.synth.geometry import surface_points
+def has_surfaces(metadata: dict | None) -> bool:
+    """True when scene.json describes the scene's surfaces (our generated scenes)."""
+    return isinstance(metadata, dict) and bool(metadata.get("surfaces"))
 
+
+def stage1_init_source(metadata: dict | None, cfg: TrainConfig) -> str:
+    """Where the initial points of G (and, with ``--init sfm``, of G_a) come from:
+    ``"scene.json"`` (its surfaces, when it has them), ``"sfm"`` (points triangulated from the
+    frames, ``--init sfm`` on a scene without surfaces) or ``"random"`` (along training rays)."""
+    if has_surfaces(metadata):
+        return "scene.json"
+    return "sfm" if cfg.init == "sfm" else "random"
+
+
+def cpu_stage1_budget(scene_dir: Path, cfg: TrainConfig) -> dict | None:
+    """Stage 1's CPU budget, or None where ``cfg`` applies as it is.
+
+    On the CPU, a stage 1 asked for the paper's full-size frames (``image_downscale`` 1) on
+    frames larger than ``cfg.gaussians.cpu_max_pixels`` trains on frames shrunk by the smallest
+    integer factor that fits, with at most ``cpu_max_gaussians`` Gaussians, so that the 3k
+    iterations take minutes instead of hours on two cores (docs/results.md, "Scenes without
+    geometry"). Returns the ``{"image_downscale", "max_gaussians"}`` to train with. On CUDA,
+    with a downscale other than 1 given, or with ``cpu_max_pixels`` 0, nothing changes.
+    """
+    g = cfg.gaussians
+    if cfg.device != "cpu" or g.image_downscale != 1 or g.backend == "gsplat" or g.cpu_max_pixels <= 0:
+        return None
+    from avgs.data.views import load_views
+
+    views = load_views(scene_dir, "train")
+    factor = 1
+    while max(1, views.width // factor) * max(1, views.height // factor) > g.cpu_max_pixels:
+        factor += 1
+    if factor == 1:
+        return None
+    return {"image_downscale": factor, "max_gaussians": min(g.max_gaussians, g.cpu_max_gaussians)}
+
+
+def initial_points(
+    scene_dir: Path,
+    metadata: dict | None,
+    cfg: TrainConfig,
+    *,
+    progress: bool = True,
+    log_fn: Callable[[dict], None] | None = None,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Initial points ``([n, 3] normalised, [n, 3] RGB in [0, 1])`` from the source
+    :func:`stage1_init_source` names, at most ``cfg.gaussians.init_points`` of them (a seeded
+    subset); None for random points (drawn by the stage-1 trainer from its views).
+
+    SfM points are triangulated from the train frames in a temporary folder (nothing is
+    written into the scene); ValueError naming the scene when too few triangulate.
+    """
+    source = stage1_init_source(metadata, cfg)
     rng = np.random.default_rng(cfg.seed)
-    return surface_points(metadata, cfg.gaussians.init_points, rng)
+    if source == "scene.json":
+        from avgs.data.synth.geometry import surface_points
+
+        return surface_points(metadata, cfg.gaussians.init_points, rng)
+    if source == "random":
+        return None
+    from avgs.gaussians.sfm import sfm_points
+
+    sparse = sfm_points(scene_dir, "train", progress=progress)
+    points, colors = sparse.points, sparse.colors
+    if len(points) > cfg.gaussians.init_points:
+        keep = np.sort(rng.choice(len(points), cfg.gaussians.init_points, replace=False))
+        points, colors = points[keep], colors[keep]
+    if log_fn is not None:
+        log_fn({"event": "sfm_points", "kept": int(len(points)), **{f"sfm_{k}": v for k, v in sparse.stats.items()}})
+    return points, colors
 
 
 def train_stage1(
@@ -68,17 +140,23 @@ def train_stage1(
     *,
     progress: bool = True,
     log_fn: Callable[[dict], None] | None = None,
+    init: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[dict, dict]:
-    """Train G on the scene's frames; returns ``(gaussians dict, stats)`` (stats include val PSNR)."""
+    """Train G on the scene's frames; returns ``(gaussians dict, stats)`` (stats include val PSNR
+    and ``init_source``). ``init``: the initial points when the caller has them already
+    (:func:`initial_points`), else they are made here."""
     from avgs.data.rwavs import read_scene_metadata
     from avgs.data.views import load_views
     from avgs.gaussians.trainer import random_init_points, train_gaussians
 
     scene_dir = Path(scene_dir)
-    geometry = geometry_points(scene_dir, read_scene_metadata(scene_dir), cfg)
+    metadata = read_scene_metadata(scene_dir)
+    source = stage1_init_source(metadata, cfg)
+    if init is None and source != "random":
+        init = initial_points(scene_dir, metadata, cfg, progress=progress, log_fn=log_fn)
     views = load_views(scene_dir, "train")
-    if geometry is not None:
-        init_points, init_colors = geometry
+    if init is not None:
+        init_points, init_colors = init
     else:
         rng = np.random.default_rng(cfg.seed)
         init_points, init_colors = random_init_points(views, cfg.gaussians.init_points, rng), None
@@ -86,16 +164,18 @@ def train_stage1(
         views, cfg.gaussians, init_points, init_colors, device=cfg.device, seed=cfg.seed, progress=progress,
         log_fn=log_fn,
     )
+    stats["init_source"] = source
+    stats["init_points"] = int(len(init_points))
     return gaussians.to_dict(), stats
 
 
 def save_stage1(path: str | Path, scene_name: str, cfg: TrainConfig, gaussians: dict, stats: dict, history: list[dict]) -> Path:
-    """Write the stage-1 file atomically."""
+    """Write the stage-1 file atomically (its key names the initial points' source from ``stats``)."""
     data = {
         "format": STAGE1_FORMAT,
         "version": STAGE1_VERSION,
         "scene": scene_name,
-        "key": stage1_key(cfg),
+        "key": stage1_key(cfg, stats.get("init_source")),
         "gaussians": {k: v.detach().float().cpu() for k, v in gaussians.items()},
         "stats": {k: v for k, v in stats.items() if isinstance(v, (int, float, str, bool, type(None)))},
         "history": list(history),
@@ -122,15 +202,16 @@ def load_stage1(path: str | Path) -> dict:
     return data
 
 
-def reusable(data: dict, scene_name: str, cfg: TrainConfig) -> bool:
-    """True when a stage-1 file was made for this scene with these settings."""
-    return data.get("scene") == scene_name and data.get("key") == stage1_key(cfg)
+def reusable(data: dict, scene_name: str, cfg: TrainConfig, init_source: str | None = None) -> bool:
+    """True when a stage-1 file was made for this scene with these settings (and this source
+    of initial points, :func:`stage1_init_source`)."""
+    return data.get("scene") == scene_name and data.get("key") == stage1_key(cfg, init_source)
 
 
 def audio_points_from(gaussians: dict | None, geometry, cfg: TrainConfig) -> AudioPoints:
     """G_a: X from G's means and alpha from G's parameters (``init="gs"``), or both from the
-    scene's geometry points (``init="sfm"``); capped at ``cfg.points.initial_points`` (else
-    ``max_points``) by a seeded random subset."""
+    initial points (``init="sfm"``: scene.json's surfaces, else SfM points); capped at
+    ``cfg.points.initial_points`` (else ``max_points``) by a seeded random subset."""
     from avgs.gaussians.model import GaussianModel
 
     spec = cfg.acoustic.alpha_init
@@ -142,6 +223,8 @@ def audio_points_from(gaussians: dict | None, geometry, cfg: TrainConfig) -> Aud
         X = model.means.detach().float().cpu()  # [N, 3]
         alpha = alpha_from_gaussians(model, spec).cpu()  # [N, D]
     else:
+        if geometry is None:
+            raise ValueError("--init sfm needs the initial points (scene.json surfaces or SfM points)")
         X = torch.as_tensor(np.asarray(geometry[0]), dtype=torch.float32)  # [N, 3]
         alpha = alpha_from_colors(torch.as_tensor(np.asarray(geometry[1])), spec)  # [N, D]
     cap = min(cfg.points.max_points, cfg.points.initial_points or cfg.points.max_points)
