@@ -131,6 +131,7 @@ class SceneView:
         plotter.set_background([c / 255 for c in BACKGROUND])
         self._points_actor = None
         self._cloud: pv.PolyData | None = None
+        self._emptied = False  # the points actor is hidden because the slice holds no point
         self._legend_shown = False
         self.legend_corner: str | None = None
         self.caption_corner: str | None = None
@@ -462,9 +463,11 @@ class SceneView:
     # ------------------------------------------------------------------ updates
     def _refresh_points(self) -> None:
         visible = self.visible
-        if self._points_actor is not None:
-            self._points_actor.SetVisibility(bool(visible.any()))
-        if not visible.any():  # the slice is below every point: nothing to draw
+        empty = not visible.any()  # the slice is below every point: nothing to draw
+        if self._points_actor is not None and empty != self._emptied:
+            self._points_actor.SetVisibility(not empty)  # only what emptying hid is shown again
+            self._emptied = empty
+        if empty:
             return
         cloud = pv.PolyData(self.points[visible])
         cloud.point_data["colours"] = self.colours()[visible]
