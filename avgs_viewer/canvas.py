@@ -15,6 +15,10 @@ only mark the widget for repaint (``QWidget.update``, which Qt coalesces), and
 ``paintGL`` renders once. So at most one render is in flight, none runs while nothing
 changed, and any number of changes between two paints cost one render. What needs
 the pixels at once (screenshots) calls :meth:`SceneCanvas.render_now`.
+
+Sound first: while :attr:`SceneCanvas.hold` says the audio path is making a pose's
+filter (a few ms), repaint requests wait for it, at most :data:`HOLD_MAX_S`, so a
+software-GL render that takes both cores never starts between a release and its sound.
 """
 
 from __future__ import annotations
@@ -22,7 +26,13 @@ from __future__ import annotations
 import time
 from collections import deque
 
+from typing import Callable
+
 from pyvistaqt import QtInteractor
+from PySide6 import QtCore
+
+HOLD_MAX_S = 0.1
+"Longest a repaint waits for the audio path (so a drag still draws while filters keep coming)."
 
 
 class SceneCanvas(QtInteractor):
@@ -42,13 +52,33 @@ class SceneCanvas(QtInteractor):
         iren.EnableRenderOff()
         self._render_observer = iren.AddObserver("RenderEvent", self._vtk_render_requested)
         self._vtk_iren = iren
+        self.hold: Callable[[], bool] | None = None
+        "True while the audio path is busy: repaints wait (the window sets it)."
+        self._held_since: float | None = None
+        self._retry = QtCore.QTimer(self)
+        self._retry.setSingleShot(True)
+        self._retry.setInterval(2)
+        self._retry.timeout.connect(self._request)
+
+    def _request(self) -> None:
+        """Ask Qt for a repaint, once the audio path is not busy (or has had HOLD_MAX_S)."""
+        hold, retry = getattr(self, "hold", None), getattr(self, "_retry", None)  # None while QtInteractor builds
+        if hold is not None and retry is not None and hold():
+            now = time.perf_counter()
+            if self._held_since is None:
+                self._held_since = now
+            if now - self._held_since < HOLD_MAX_S:
+                retry.start()
+                return
+        self._held_since = None
+        self.update()
 
     def render(self) -> None:
         """Ask for a repaint: the scene is drawn once at the next paint, however many calls came before."""
         if getattr(self, "_closed", False):
             return
         self._rendered = True  # what BasePlotter.render sets: the plotter counts as shown
-        self.update()
+        self._request()
 
     def render_now(self) -> None:
         """Render at once (for reading pixels back); the widget repaints after."""
@@ -61,9 +91,11 @@ class SceneCanvas(QtInteractor):
 
     def _vtk_render_requested(self, *_args) -> None:
         if not self._in_paint:
-            self.update()
+            self._request()
 
     def close(self) -> None:
+        self.hold = None
+        self._retry.stop()
         iren, self._vtk_iren = self._vtk_iren, None
         if iren is not None:  # VTK holds the bound method: it would pin the widget after close
             iren.RemoveObserver(self._render_observer)

@@ -30,6 +30,8 @@ from .state import ColourMode, ViewerState
 
 BACKGROUND = (22, 24, 30)
 POINT_SIZE = 6.0
+FAST_POINTS = 4000
+"Points drawn while anything moves (a fixed random subset): a software-GL frame then costs a fraction, leaving the CPU to the sound."
 HALO = ((1.16, (1.0, 1.0, 1.0)), (1.36, (0.02, 0.02, 0.03)))
 "Rings around each handle: (radius as a multiple of the handle's, colour), inner first."
 CORNERS = ("upper right", "upper left", "lower right", "lower left")
@@ -132,6 +134,7 @@ class SceneView:
         self._points_actor = None
         self._cloud: pv.PolyData | None = None
         self._emptied = False  # the points actor is hidden because the slice holds no point
+        self._fast_cloud: pv.PolyData | None = None  # what is drawn while anything moves
         self._legend_shown = False
         self.legend_corner: str | None = None
         self.caption_corner: str | None = None
@@ -471,14 +474,20 @@ class SceneView:
             return
         cloud = pv.PolyData(self.points[visible])
         cloud.point_data["colours"] = self.colours()[visible]
+        self._cloud = cloud
+        self._fast_cloud = cloud
+        if cloud.n_points > FAST_POINTS:
+            pick = np.random.default_rng(0).permutation(cloud.n_points)[:FAST_POINTS]
+            self._fast_cloud = pv.PolyData(cloud.points[pick])
+            self._fast_cloud.point_data["colours"] = cloud.point_data["colours"][pick]
+        shown = self._fast_cloud if self.state.interacting else cloud
         if self._points_actor is None:
             self._points_actor = self.plotter.add_mesh(
-                cloud, scalars="colours", rgb=True, style="points", point_size=POINT_SIZE,
+                shown, scalars="colours", rgb=True, style="points", point_size=POINT_SIZE,
                 render_points_as_spheres=not self.state.interacting, lighting=False,
                 name="audio_points", pickable=False, reset_camera=False)
         else:
-            self._points_actor.mapper.SetInputData(cloud)
-        self._cloud = cloud
+            self._points_actor.mapper.SetInputData(shown)
         if self._legend_shown:
             self.show_legend()
 
@@ -506,9 +515,12 @@ class SceneView:
         self.set_fast(moving)
 
     def set_fast(self, fast: bool) -> None:
-        """Cheap point style (plain squares) while anything moves; shaded spheres when idle."""
+        """Cheap drawing while anything moves (FAST_POINTS of the points, plain squares); all points
+        as shaded spheres when idle."""
         if self._points_actor is None:
             return
+        if self._cloud is not None:
+            self._points_actor.mapper.SetInputData(self._fast_cloud if fast else self._cloud)
         prop = self._points_actor.prop
         prop.render_points_as_spheres = not fast
         prop.point_size = POINT_SIZE - 2 if fast else POINT_SIZE

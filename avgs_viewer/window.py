@@ -425,6 +425,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.live = LiveAudio(renderer, state, self.engine, clip, on_result=self._bridge.rendered.emit,
                               on_error=lambda req, exc: self._bridge.render_failed.emit(req, f"{type(exc).__name__}: {exc}"))
         self.live.request()
+        live = self.live
+        self.plotter.hold = lambda: not live.worker.wait_idle(0.0)  # sound first: paints wait for the filter
         self.plotter.render()
 
     def _set_playing(self, playing: bool) -> None:
@@ -464,6 +466,7 @@ class MainWindow(QtWidgets.QMainWindow):
     def _teardown_scene(self) -> None:
         self.map_controls.teardown()
         if self.live is not None:
+            self.plotter.hold = None
             self.live.close()
             self.live = None
         if self.view is not None:
