@@ -6,12 +6,13 @@ happens here and nowhere else. Rendering runs the model's own code
 (:meth:`AVGSModel.masks <avgs.acoustics.model.AVGSModel.masks>`) under
 ``torch.inference_mode`` with its caches: the pose-independent parts of F and B
 (:meth:`~avgs.acoustics.model.AVGSModel.precompute`) and the source context C_S, kept
-until the source moves. The masks are time-invariant, so a pose is a filter: by default
-(:class:`~avgs.config.SynthesisConfig` ``method="filter"``) its binaural impulse response
-(:meth:`SceneRenderer.binaural_filter`, :mod:`avgs.acoustics.impulse_response`) convolved
-with the input by FFT, for any length; :meth:`SceneRenderer.stream` does the same block by
-block. ``method="spectrogram"`` synthesises the predicted ear magnitudes instead
-(:mod:`avgs.acoustics.synthesis`, with phase iterations).
+until the source moves. The masks are time-invariant, so a pose is a filter, its binaural
+impulse response (:meth:`SceneRenderer.binaural_filter`, :mod:`avgs.acoustics.impulse_response`).
+By default (:class:`~avgs.config.SynthesisConfig`) a render is B's predicted ear magnitudes
+with the phase of the input through that filter, for any length, and
+:meth:`SceneRenderer.stream` gives the same block by block; ``method="filter"`` is the
+convolution alone (what the explorer plays), ``phase="source"`` the paper's synthesis, and
+``phase_iterations`` refine either phase (:mod:`avgs.acoustics.synthesis`).
 
 Bounded sound: the listener and the source are kept inside the scene's box
 (:attr:`SceneRenderer.bounds`, which holds its audio points, G, the training poses and the
@@ -133,7 +134,7 @@ class SceneRenderer:
         self.dtype = dtype
         "Precision of the networks (float32; others for measurement: CPUs without native support run them slower)."
         self.synthesis = synthesis or SynthesisConfig()
-        "How :meth:`render` makes a waveform of the predicted magnitudes (phase iterations)."
+        "How :meth:`render` makes a waveform (:class:`~avgs.config.SynthesisConfig`)."
         self.config = config_of(ckpt)
         self.stft = stft_of(ckpt)
         self.frame: SceneFrame = SceneFrame.from_dict(ckpt["frame"])

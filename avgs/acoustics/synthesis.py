@@ -12,8 +12,9 @@ The paper's mask model, per frequency, broadcast over frames::
 
 With the reverberant tail (:mod:`avgs.acoustics.reverb_tail`) each ear adds decayed power
 of earlier frames: ``s_ear = sqrt((|S| g_ear)^2 + r_ear^2 P)``, and ``s_m`` is the mean of
-the two ears. The waveform is the iSTFT of the ear magnitudes with the source's phase,
-refined by ``SynthesisConfig.phase_iterations`` of fast Griffin-Lim.
+the two ears. The waveform is the iSTFT of the ear magnitudes with a phase (the source's
+here; the pose's filter's in :meth:`SceneRenderer.render <avgs.inference.SceneRenderer.render>`
+by default), refined by ``SynthesisConfig.phase_iterations`` of fast Griffin-Lim.
 """
 
 from __future__ import annotations
@@ -117,7 +118,7 @@ def ear_spectrogram(mono_stft: torch.Tensor, masks: Masks, post_conv=None, first
 def waveform(spec: torch.Tensor, length: int, stft: STFTConfig = STFT, synthesis: SynthesisConfig | None = None):
     """Waveform ``[..., length]`` of an ear spectrogram ``spec [..., F, N_t]`` (:func:`ear_spectrogram`):
     its magnitudes restored by ``synthesis``'s phase iterations from its phase (None: the defaults;
-    0 iterations is the plain iSTFT, the paper's synthesis and the stream's)."""
+    0 iterations is the plain iSTFT)."""
     synthesis = synthesis or SynthesisConfig()
     return dsp.griffin_lim(spec, spec.abs(), length, synthesis.phase_iterations, synthesis.phase_momentum, stft)
 
