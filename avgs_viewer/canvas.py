@@ -17,8 +17,9 @@ changed, and any number of changes between two paints cost one render. What need
 the pixels at once (screenshots) calls :meth:`SceneCanvas.render_now`.
 
 Sound first: while :attr:`SceneCanvas.hold` says the audio path is making a pose's
-filter (a few ms), repaint requests wait for it, at most :data:`HOLD_MAX_S`, so a
-software-GL render that takes both cores never starts between a release and its sound.
+filter (a few ms), a paint keeps the last frame and tries again 2 ms later, for at most
+:data:`HOLD_MAX_S`: a software-GL render, which slows the filter's every step about
+sixfold, never runs between a pose change and its sound.
 """
 
 from __future__ import annotations
@@ -61,17 +62,23 @@ class SceneCanvas(QtInteractor):
         self._retry.timeout.connect(self._request)
 
     def _request(self) -> None:
-        """Ask Qt for a repaint, once the audio path is not busy (or has had HOLD_MAX_S)."""
-        hold, retry = getattr(self, "hold", None), getattr(self, "_retry", None)  # None while QtInteractor builds
-        if hold is not None and retry is not None and hold():
-            now = time.perf_counter()
-            if self._held_since is None:
-                self._held_since = now
-            if now - self._held_since < HOLD_MAX_S:
-                retry.start()
-                return
-        self._held_since = None
+        """Ask Qt for a repaint (coalesced); the paint itself waits for the audio path (:meth:`_waiting`)."""
         self.update()
+
+    def _waiting(self) -> bool:
+        """True when this paint should wait: the audio path is busy and has not had HOLD_MAX_S yet."""
+        hold, retry = getattr(self, "hold", None), getattr(self, "_retry", None)  # None while QtInteractor builds
+        if hold is None or retry is None or not hold():
+            self._held_since = None
+            return False
+        now = time.perf_counter()
+        if self._held_since is None:
+            self._held_since = now
+        if now - self._held_since >= HOLD_MAX_S:
+            self._held_since = None
+            return False
+        retry.start()  # paint again in 2 ms
+        return True
 
     def render(self) -> None:
         """Ask for a repaint: the scene is drawn once at the next paint, however many calls came before."""
@@ -106,6 +113,8 @@ class SceneCanvas(QtInteractor):
         iren = self._vtk_iren
         if iren is None:  # closed
             return super().paintGL()
+        if self._waiting():  # sound first: the widget keeps its last frame until the filter is made
+            return
         iren.EnableRenderOn()
         try:
             super().paintGL()
