@@ -1,0 +1,54 @@
+"""The 3D view's paints under Xvfb: coalesced, and held back while the audio path makes a filter."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+pytest.importorskip("pytestqt")
+import pyvista as pv  # noqa: E402
+
+from avgs_viewer.canvas import HOLD_MAX_S, SceneCanvas  # noqa: E402
+
+pytestmark = pytest.mark.gui
+
+
+@pytest.fixture
+def canvas(qtbot):
+    c = SceneCanvas()
+    qtbot.addWidget(c)
+    c.add_mesh(pv.Sphere())
+    c.resize(320, 240)
+    c.show()
+    qtbot.waitUntil(lambda: c.frames > 0, timeout=10_000)
+    yield c
+    c.close()
+
+
+def test_many_render_requests_cost_one_paint(qtbot, canvas):
+    qtbot.wait(100)
+    before = canvas.frames
+    for _ in range(20):
+        canvas.render()
+    qtbot.waitUntil(lambda: canvas.frames > before, timeout=5_000)
+    qtbot.wait(100)
+    assert canvas.frames == before + 1
+
+
+def test_a_paint_waits_while_the_audio_path_is_busy_then_draws(qtbot, canvas):
+    busy = {"on": True}
+    canvas.hold = lambda: busy["on"]
+    qtbot.wait(100)
+    before = canvas.frames
+    canvas.render()
+    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.4))
+    assert canvas.frames == before  # held: the filter comes first
+    busy["on"] = False
+    qtbot.waitUntil(lambda: canvas.frames == before + 1, timeout=2_000)  # drawn as soon as it is made
+
+    busy["on"] = True  # a filter that never ends cannot freeze the view: drawn after HOLD_MAX_S
+    start = time.perf_counter()
+    canvas.render()
+    qtbot.waitUntil(lambda: canvas.frames == before + 2, timeout=2_000)
+    assert time.perf_counter() - start >= HOLD_MAX_S * 0.9
