@@ -41,8 +41,7 @@ import torch
 from avgs import dsp
 from avgs.data.frame import signed_direction
 from avgs.acoustics.impulse_response import TailShaper, convolve, impulse_response
-from avgs.acoustics.synthesis import Masks, ear_gains, ear_magnitudes, ear_spectrogram, waveform
-from avgs.streaming import unit_phase
+from avgs.acoustics.synthesis import Masks, ear_gains, ear_spectrogram, unit_phase, waveform
 from avgs.checkpoint import config_of, load_checkpoint, stft_of
 from avgs.config import SynthesisConfig
 from avgs.data.frame import SceneFrame
@@ -392,9 +391,8 @@ class SceneRenderer:
             else:  # the predicted magnitudes with the filter's phase: the input and its filtered copy in one STFT
                 both = torch.cat([piece[None], filtered[:, start:stop].to(self.device)])  # [3, stop - start]
                 spec = dsp.stft(both, self.stft)  # [3, F, N]
-                _, s_l, s_r = ear_magnitudes(spec[:1].abs(), m32)
-                target = torch.cat([s_l, s_r])  # [2, F, N]
-                ears = (target * unit_phase(spec[1:]))[None]  # [1, 2, F, N]
+                ears = ear_spectrogram(spec[:1], m32, phase=unit_phase(spec[1:])[None])  # [1, 2, F, N]
+                target = ears[0].abs() if magnitudes else None
             if magnitudes:
                 mags = np.ascontiguousarray((target.double().cpu().numpy() * scale).astype(np.float32))
             if synthesis.method == "filter" and filtered is not None:

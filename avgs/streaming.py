@@ -29,22 +29,13 @@ import torch
 from avgs import dsp
 from avgs.acoustics.convolution import ConvolutionStream
 from avgs.acoustics.reverb_tail import tail_power_recursive
-from avgs.acoustics.synthesis import Masks, ear_magnitudes
+from avgs.acoustics.synthesis import Masks, ear_magnitudes, unit_phase
 from avgs.config import STFT, STFTConfig
 
 
 def _hann(n: int) -> np.ndarray:
     """Periodic Hann window, as ``torch.hann_window`` (float64)."""
     return 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(n) / n)
-
-
-def unit_phase(spec):
-    """``spec / |spec|``, 1 where ``spec`` is 0 (numpy or torch, complex)."""
-    if isinstance(spec, torch.Tensor):
-        size = spec.abs()
-        return torch.where(size > 0, spec / size.clamp_min(torch.finfo(size.dtype).tiny), 1.0)
-    size = np.abs(spec)
-    return np.where(size > 0, spec / np.maximum(size, np.finfo(size.dtype).tiny), 1.0)
 
 
 class BinauralStream:

@@ -346,3 +346,13 @@ def test_every_training_field_is_a_flag_with_its_docstring_as_help():
         parse("--vicinity-percentile", "0")
     with pytest.raises(SystemExit):
         parse("--direction-encoding", "embedding")  # retired: not among the choices
+
+
+def test_validation_mag_in_the_log_is_what_avgs_eval_scores(trained):
+    """Stage 2 validates with the renderer's default synthesis, so the logged val_mag is avgs eval's MAG."""
+    from avgs import evaluate
+    from avgs.data.rwavs import RWAVSScene
+
+    scene, out, final = trained
+    scored = evaluate.score_scene(evaluate.load_method(f"ckpt:{out}"), RWAVSScene(scene.scene_dir), progress=False)
+    assert final["val_mag"] == pytest.approx(scored["MAG"], rel=1e-3)

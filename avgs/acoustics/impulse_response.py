@@ -31,7 +31,7 @@ import math
 import torch
 
 from avgs import dsp
-from avgs.acoustics.synthesis import Masks, ear_gains
+from avgs.acoustics.synthesis import Masks, ear_gains, unit_phase
 from avgs.config import STFT, STFTConfig
 
 FLOOR_DB = -120.0
@@ -182,3 +182,14 @@ def convolve(x: torch.Tensor, h: torch.Tensor, block: int = 1 << 17) -> torch.Te
         stop = min(t, start + size)
         y[:, start:stop] += out[:, : stop - start]
     return y
+
+
+def filter_phase(mono: torch.Tensor, masks: Masks, stft: STFTConfig = STFT, tail: TailShaper | None = None) -> torch.Tensor:
+    """Unit phasors ``[B, 2, F, N_t]`` of the STFT of each input ``mono [B, T]`` through its pose's
+    filter (masks [B, ...]): the phase the default synthesis gives B's ear magnitudes
+    (:func:`avgs.acoustics.synthesis.ear_spectrogram`), on the masks' device. ``tail``: a
+    :class:`TailShaper` for ``masks.decay``."""
+    h = impulse_response(masks, stft, tail)  # [B, 2, L] float64, CPU
+    x = mono.detach().to("cpu", torch.float64)
+    filtered = torch.stack([convolve(x[b], h[b]) for b in range(len(h))])  # [B, 2, T]
+    return unit_phase(dsp.stft(filtered, stft)).to(device=masks.mixture.device, dtype=torch.complex64)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numpy as np
 import torch
 
 from avgs import dsp
@@ -84,6 +85,15 @@ def _sqrt0(x: torch.Tensor) -> torch.Tensor:
     return torch.where(x > tiny, torch.sqrt(x.clamp_min(tiny)), torch.zeros_like(x))
 
 
+def unit_phase(spec):
+    """``spec / |spec|``, 1 where ``spec`` is 0 (numpy or torch, complex)."""
+    if isinstance(spec, torch.Tensor):
+        size = spec.abs()
+        return torch.where(size > 0, spec / size.clamp_min(torch.finfo(size.dtype).tiny), 1.0)
+    size = np.abs(spec)
+    return np.where(size > 0, spec / np.maximum(size, np.finfo(size.dtype).tiny), 1.0)
+
+
 def source_phase(mono_stft: torch.Tensor, first_frame: int = 0, tail: bool = False) -> torch.Tensor:
     """Unit phasors of the source's STFT [..., F, N_t] (complex), for bins where it is silent: 1, or with
     a reverberant ``tail`` ringing on after the source stops, a fixed pseudo-random phase
@@ -96,14 +106,23 @@ def source_phase(mono_stft: torch.Tensor, first_frame: int = 0, tail: bool = Fal
     return torch.where(mag > 0, mono_stft / mag.clamp_min(torch.finfo(mag.dtype).tiny), silent)
 
 
-def ear_spectrogram(mono_stft: torch.Tensor, masks: Masks, post_conv=None, first_frame: int = 0) -> torch.Tensor:
-    """The predicted complex spectrogram of both ears: ear magnitudes with the source's phase.
+def ear_spectrogram(mono_stft: torch.Tensor, masks: Masks, post_conv=None, first_frame: int = 0,
+                    phase: torch.Tensor | None = None) -> torch.Tensor:
+    """The predicted complex spectrogram of both ears: ear magnitudes with the source's phase, or with ``phase``.
 
     mono_stft: [B, F, N_t] complex -> [B, 2, F, N_t] complex. Its magnitudes are what B is
     trained to match and what AV-NeRF's evaluation scores. ``post_conv``: the binauralizer's
     :class:`~avgs.acoustics.post_conv.PostConv`, or None. ``first_frame``: the absolute index of
     frame 0 when ``mono_stft`` is a stretch of a longer signal (for the tail's fill phase).
+    ``phase``: unit phasors [B, 2, F, N_t] to use instead of the source's, such as those of the
+    input through the pose's filter (:func:`avgs.acoustics.impulse_response.filter_phase`;
+    the mask model only).
     """
+    if phase is not None:
+        if post_conv is not None:
+            raise ValueError("a given phase needs the mask model; the conv head takes the source's phase")
+        _, s_l, s_r = ear_magnitudes(mono_stft.abs(), masks)
+        return torch.stack([s_l, s_r], dim=1) * phase  # [B, 2, F, N_t]
     if post_conv is None and masks.reverb is None:
         # |S| g e^{i phase(S)} = S g: the gains scale the source spectrum, keeping its phase.
         return mono_stft[:, None] * ear_gains(masks.mixture, masks.difference)[..., None]  # [B, 2, F, N_t]
@@ -125,7 +144,7 @@ def waveform(spec: torch.Tensor, length: int, stft: STFTConfig = STFT, synthesis
 
 def binaural_waveform(
     mono_stft: torch.Tensor, masks: Masks, length: int, stft: STFTConfig = STFT, post_conv=None,
-    synthesis: SynthesisConfig | None = None,
+    synthesis: SynthesisConfig | None = None, phase: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """:func:`waveform` of :func:`ear_spectrogram`: [B, 2, length] (channel 0 = left)."""
-    return waveform(ear_spectrogram(mono_stft, masks, post_conv), length, stft, synthesis)
+    return waveform(ear_spectrogram(mono_stft, masks, post_conv, phase=phase), length, stft, synthesis)

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from avgs.acoustics.model import AVGSModel
+from avgs.acoustics.impulse_response import TailShaper, filter_phase
 from avgs.acoustics.synthesis import binaural_waveform
 from avgs.config import TrainConfig
 from avgs.point_management import AudioPointManager
@@ -115,12 +116,17 @@ class Stage2Trainer:
         self.model.eval()
         source = data.source.to(self.device)
         cached = self.model.source_context(source)
+        post_conv = self.model.binauralizer.post_conv
+        reverb = self.model.binauralizer.reverb
+        tail = None if reverb is None else TailShaper(reverb.decay(), self.cfg.stft)  # the room as trained so far
         out = []
         for i in range(0, len(data), chunk):
             sl = slice(i, i + chunk)
             m = self.model.masks(data.listener[sl].to(self.device), data.theta[sl].to(self.device), source, cached)
             spec = data.mono_stft[sl].to(self.device)
-            out.append(binaural_waveform(spec, m, data.mono.shape[-1], self.cfg.stft, self.model.binauralizer.post_conv).cpu())
+            # the phase of the input through each pose's filter, as render() takes it (the conv head: the source's)
+            phase = None if post_conv is not None else filter_phase(data.mono[sl], m, self.cfg.stft, tail)
+            out.append(binaural_waveform(spec, m, data.mono.shape[-1], self.cfg.stft, post_conv, phase=phase).cpu())
         return torch.cat(out)
 
     def evaluate(self, data) -> dict:
