@@ -139,6 +139,8 @@ class SceneRenderer:
         self.frame: SceneFrame = SceneFrame.from_dict(ckpt["frame"])
         self.history: list[dict] = list(ckpt.get("history", []))
         self.name: str = str(ckpt["scene"].get("name", ""))
+        self.task: str = str(ckpt.get("task", "binaural"))
+        "What the model was trained for: ``binaural`` (RWAVS: one source) or ``rir`` (impulse responses, sources anywhere)."
         pts = ckpt["audio_points"]
         fixed_k = ckpt.get("vicinity_k")  # set by pruning (avgs.prune): k kept from before
         model = AVGSModel(
@@ -224,6 +226,13 @@ class SceneRenderer:
         """The scene's learned reverberation time per frequency bin, seconds [F]; None without a reverberant tail."""
         tail = self.model.binauralizer.reverb
         return None if tail is None else tail.rt60().detach().float().cpu().numpy()
+
+    @property
+    def source_aware(self) -> bool:
+        """Whether the model was trained on many source positions (the impulse-response task),
+        so that a moved source is really heard; False for a one-source scene (the RWAVS task),
+        where a moved source changes only the direction the ears hear it from."""
+        return self.task == "rir"
 
     @property
     def sample_rate(self) -> int:
