@@ -11,7 +11,12 @@ A ``torch.save`` dict of tensors and plain values only, read back with
                     opacity_logits, sh [M,16,3]); absent with --no-gaussians
     audio_points    {X [N,3] normalised, alpha [N,D]}
     field           F's state dict ({} for a --no-context model)
-    binauralizer    B's state dict
+    binauralizer    B's state dict (the impulse-response task: the RIR network's,
+                    :class:`~avgs.acoustics.rir_binauralizer.RIRBinauralizer`, with its mean
+                    log magnitude and floor)
+    task            optional: ``"binaural"`` (RWAVS: one source; the value of files without it)
+                    or ``"rir"`` (impulse responses of many sources, ``avgs train --task rir``)
+    rir             optional, task rir: {sources [S,3], receivers [R,3]} normalised, the training positions
     config          TrainConfig.to_dict()
     history         list of log records (dicts of plain values)
     scene           {name, bounds [2,3] world, outline [K,2,3] world segments (optional)}
@@ -53,6 +58,8 @@ FORMAT_VERSION = 1
 "Bumped whenever the layout of the checkpoint dict changes incompatibly."
 REQUIRED_KEYS = ("format_version", "frame", "source", "stft", "audio_points", "field", "binauralizer", "config", "history", "scene")
 "Top-level keys every checkpoint carries (``gaussians`` is optional)."
+TASKS = ("binaural", "rir")
+"What a checkpoint can be trained for (its ``task``; absent: binaural)."
 CHECKSUM_KEY = "checksum"
 "Top-level key of the integrity checksum that :func:`save_checkpoint` adds."
 
@@ -296,6 +303,8 @@ MAX_FREQUENCIES = 64
 "Most positional-encoding frequencies (2^63 is far beyond float32's resolution already)."
 MAX_HARMONICS = 4096
 "Most direction harmonics a stored configuration may ask for."
+MAX_RIR_FRAMES = 1 << 14
+"Most STFT frames of a response of the impulse-response task (about 95 s at AV-NeRF's hop)."
 
 
 class _Invalid(Exception):
@@ -426,7 +435,12 @@ def _validate(ckpt: dict) -> None:
     alpha = _tensor(pts["alpha"], "audio_points.alpha", (len(X), None))
     if alpha.shape[1] < 1:
         raise _Invalid(f"audio_points.alpha must be a tensor [{len(X)}, D >= 1], got shape {tuple(alpha.shape)}")
-    _validate_networks(ckpt, cfg, stft, alpha.shape[1])
+    task = ckpt.get("task", "binaural")
+    if not (isinstance(task, str) and task in TASKS):
+        raise _Invalid(f"'task' must be one of {', '.join(map(repr, TASKS))}, got {_kind(task)}")
+    if task == "rir":
+        _validate_rir(ckpt, cfg, stft)
+    _validate_networks(ckpt, cfg, stft, alpha.shape[1], task)
     _validate_scene(ckpt["scene"])
     history = ckpt["history"]
     if not isinstance(history, list):
@@ -458,7 +472,7 @@ def _validate_config(raw) -> TrainConfig:
         cfg = TrainConfig.from_dict(raw)
     except (TypeError, ValueError) as exc:
         raise _Invalid(f"bad 'config': {exc}") from None
-    for section in (cfg, cfg.gaussians, cfg.acoustic, cfg.points, cfg.stft):
+    for section in (cfg, cfg.gaussians, cfg.acoustic, cfg.points, cfg.stft, cfg.rir):
         hints = typing.get_type_hints(type(section))
         prefix = "" if section is cfg else next(
             f"{f.name}." for f in dataclasses.fields(cfg) if getattr(cfg, f.name) is section
@@ -485,6 +499,11 @@ def _validate_config(raw) -> TrainConfig:
         ("acoustic.pe_frequencies", a.pe_frequencies, MAX_FREQUENCIES),
         ("acoustic.position_frequencies", a.position_frequencies, MAX_FREQUENCIES),
         ("acoustic.direction_harmonics", a.direction_harmonics, MAX_HARMONICS),
+        ("rir.width", cfg.rir.width, MAX_WIDTH), ("rir.position_frequencies", cfg.rir.position_frequencies, MAX_FREQUENCIES),
+        ("rir.time_frequencies", cfg.rir.time_frequencies, MAX_FREQUENCIES),
+        ("rir.arrival_frequencies", cfg.rir.arrival_frequencies, MAX_FREQUENCIES),
+        ("rir.direction_harmonics", cfg.rir.direction_harmonics, MAX_HARMONICS),
+        ("rir.frames", cfg.rir.frames, MAX_RIR_FRAMES),
     ):
         if value > most:  # the networks are built (on the meta device) before their weights are compared
             raise _Invalid(f"bad 'config': {name} must be at most {most}, got {_name(value)}")
@@ -533,25 +552,43 @@ def _validate_stft(raw, where: str) -> STFTConfig:
     return STFTConfig(sample_rate=sr, n_fft=n_fft, hop_length=hop, win_length=win)
 
 
-def _expected_state_dicts(cfg: TrainConfig, stft: STFTConfig, alpha_dim: int) -> dict[str, dict[str, torch.Tensor]]:
+def _validate_rir(ckpt: dict, cfg: TrainConfig, stft: STFTConfig) -> None:
+    """Task rir: the responses' length and frames in the configuration, the training positions."""
+    r = cfg.rir
+    if not (r.length >= 1 and r.frames == 1 + r.length // stft.hop_length):
+        raise _Invalid(f"bad 'config': task rir needs rir.length >= 1 samples and rir.frames = 1 + length // hop "
+                       f"(the responses' STFT frames), got length {_name(r.length)}, frames {_name(r.frames)}")
+    positions = ckpt.get("rir")
+    if positions is not None:
+        for key, value in _dict(positions, "rir").items():
+            _tensor(value, f"rir.{_name(key)}", (None, 3))
+
+
+def _expected_state_dicts(cfg: TrainConfig, stft: STFTConfig, alpha_dim: int,
+                          task: str = "binaural") -> dict[str, dict[str, torch.Tensor]]:
     """``{"field": ..., "binauralizer": ...}``: the state dicts (meta tensors: shapes and dtypes, no
-    memory) of the networks :class:`~avgs.acoustics.model.AVGSModel` builds from this configuration."""
+    memory) of the networks :class:`~avgs.acoustics.model.AVGSModel` (task rir:
+    :class:`~avgs.acoustics.rir_model.RIRModel`) builds from this configuration."""
     from avgs.acoustics.binauralizer import Binauralizer
     from avgs.acoustics.field import AcousticField
+    from avgs.acoustics.rir_binauralizer import RIRBinauralizer
 
     a = cfg.acoustic
+    context = 2 * a.context_dim if a.use_context else None
     try:
         with torch.device("meta"):
             field = AcousticField(alpha_dim, a.field_width, a.field_layers, a.context_dim) if a.use_context else None
-            binauralizer = Binauralizer(a, 2 * a.context_dim if a.use_context else None, stft.n_freq,
-                                        stft.hop_length / stft.sample_rate)
+            if task == "rir":
+                binauralizer = RIRBinauralizer(cfg.rir, context, stft.n_freq, cfg.rir.frames, stft.hop_length / stft.sample_rate)
+            else:
+                binauralizer = Binauralizer(a, context, stft.n_freq, stft.hop_length / stft.sample_rate)
     except (ValueError, TypeError, RuntimeError) as exc:
         raise _Invalid(f"bad 'config': no model can be built from it ({exc})") from None
     return {"field": {} if field is None else field.state_dict(), "binauralizer": binauralizer.state_dict()}
 
 
-def _validate_networks(ckpt: dict, cfg: TrainConfig, stft: STFTConfig, alpha_dim: int) -> None:
-    expected = _expected_state_dicts(cfg, stft, alpha_dim)
+def _validate_networks(ckpt: dict, cfg: TrainConfig, stft: STFTConfig, alpha_dim: int, task: str = "binaural") -> None:
+    expected = _expected_state_dicts(cfg, stft, alpha_dim, task)
     for name in ("field", "binauralizer"):
         state = _dict(ckpt[name], name)
         want = expected[name]
@@ -721,6 +758,11 @@ def _validate_host_rng(value, key: str) -> None:
         gauss = value.get("gauss_next")
         if not (_is_int(value.get("version")) and (gauss is None or _is_number(gauss))):
             raise _Invalid(f"{where} must hold an integer 'version' and 'gauss_next' (a number or None)")
+
+
+def task_of(ckpt: dict) -> str:
+    """What the checkpoint was trained for: ``binaural`` (also files written before tasks) or ``rir``."""
+    return str(ckpt.get("task", "binaural"))
 
 
 def config_of(ckpt: dict) -> TrainConfig:

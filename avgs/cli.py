@@ -20,6 +20,7 @@ COMMANDS: dict[str, str] = {
     "info": "Print what a checkpoint holds.",
     "prune": "Keep only the audio points some listener or source vicinity can use.",
     "bench": "Benchmark speed against error; writes benchmarks/REPORT.md.",
+    "sweep": "Train scenes x settings x seeds on Ray (resumable), then score every run into one table.",
 }
 
 

@@ -174,6 +174,45 @@ class PointManagementConfig:
 
 
 @dataclass
+class RIRConfig:
+    """The impulse-response task (SoundSpaces-like, many source positions): the RIR variant of B.
+
+    The paper's appendix: no mixture mask; B's second MLP predicts the response for a time
+    input. We predict it in time-frequency form: for a time input (one STFT frame) both ears'
+    log magnitudes over all frequency bins (:mod:`avgs.acoustics.rir_binauralizer`); the
+    waveform comes from those magnitudes with a phase (:mod:`avgs.acoustics.rir_model`).
+    F, G_a, the vicinity, learning rates and iterations are those of :class:`AcousticConfig`.
+    """
+
+    width: int = 256
+    "Width of the RIR network's MLPs (paper: 256 for RIR)."
+    position_frequencies: int = 2
+    "Positional-encoding frequencies of the listener's and the source's (x, y, z), log-spaced up to 2^(n-1) (more: memorises the training pairs)."
+    time_frequencies: int = 10
+    "Positional-encoding frequencies of the time input (the STFT frame, mapped onto [-0.99, 0.99])."
+    direction_harmonics: int = 4
+    "Orders of the direction feature: cos(n theta), sin(n theta) of the source's direction, and of the yaw, n = 1 .. this."
+    arrival_frequencies: int = 0
+    "Positional-encoding frequencies of each frame's time relative to the direct sound's arrival (distance / c); 0: off (measured no better on rect_small)."
+    sound_speed: float = 0.0
+    "Speed of sound in normalised units per second (set from the scene's frame at training: 343 m/s times its scale)."
+    smooth_bins: int = 9
+    "The targets' power is averaged over this many neighbouring frequency bins before the log: the network learns the spectral envelope, not the random fine structure of a diffuse tail (1: none)."
+    floor_db: float = -80.0
+    "Log magnitudes are floored this far below the training responses' loudest STFT bin (rect_small: -60 cuts the decay, T60 38 %; -100 spends the loss on inaudible decay, C50 and EDT worse; -80: T60 25 %, C50 1.2 dB)."
+    frames: int = 0
+    "STFT frames of a response (0: taken from the scene's responses at training; stored with the checkpoint)."
+    length: int = 0
+    "Samples of a response (0: the scene's; stored with the checkpoint)."
+    phase: Literal["noise", "griffin-lim"] = "noise"
+    "Waveform from the predicted magnitudes: a fixed-seed noise phase, or that phase refined by fast Griffin-Lim (same T60 / C50 / EDT on rect_small, 2.4x the render time)."
+    phase_iterations: int = 4
+    "Fast Griffin-Lim iterations with phase griffin-lim."
+    eval_responses: int = 64
+    "At most this many validation responses get T60 / C50 / EDT at each evaluation (log-magnitude error: all)."
+
+
+@dataclass
 class TrainConfig:
     """Both stages, bookkeeping and reproducibility."""
 
@@ -181,6 +220,8 @@ class TrainConfig:
     acoustic: AcousticConfig = field(default_factory=AcousticConfig)
     points: PointManagementConfig = field(default_factory=PointManagementConfig)
     stft: STFTConfig = field(default_factory=STFTConfig)
+    rir: RIRConfig = field(default_factory=RIRConfig)
+    "The impulse-response task's network and synthesis (``avgs train --task rir``)."
     init: Literal["gs", "sfm"] = "gs"
     "Audio points from a warmed-up 3D-GS (gs) or straight from the scene geometry points (sfm)."
     seed: int = 0
@@ -210,6 +251,7 @@ class TrainConfig:
             "acoustic": AcousticConfig,
             "points": PointManagementConfig,
             "stft": STFTConfig,
+            "rir": RIRConfig,
         }
         for (section, name), (value, why) in RETIRED.items():
             if isinstance(d.get(section), dict) and d[section].get(name) == value:
@@ -249,6 +291,16 @@ class TrainConfig:
             (self.seed >= 0, "seed", self.seed, ">= 0"),
             (self.checkpoint_every >= 1 and self.eval_every >= 1, "checkpoint/eval interval",
              (self.checkpoint_every, self.eval_every), ">= 1"),
+            (self.rir.width >= 1 and self.rir.direction_harmonics >= 1, "rir width and direction harmonics",
+             (self.rir.width, self.rir.direction_harmonics), ">= 1"),
+            (min(self.rir.position_frequencies, self.rir.time_frequencies, self.rir.frames, self.rir.length,
+                 self.rir.arrival_frequencies, self.rir.sound_speed,
+                 self.rir.phase_iterations, self.rir.eval_responses) >= 0,
+             "rir position/time/arrival frequencies, frames, length, sound speed, phase iterations and eval responses",
+             (self.rir.position_frequencies, self.rir.time_frequencies, self.rir.frames, self.rir.length,
+              self.rir.arrival_frequencies, self.rir.sound_speed, self.rir.phase_iterations, self.rir.eval_responses), ">= 0"),
+            (self.rir.floor_db < 0, "rir floor dB", self.rir.floor_db, "< 0"),
+            (self.rir.smooth_bins >= 1, "rir smooth bins", self.rir.smooth_bins, ">= 1"),
         ]
         for ok, what, value, expected in checks:
             if not ok:

@@ -78,16 +78,19 @@ class CheckpointMethod:
 
 class CheckpointSetMethod:
     """A folder of checkpoints, one per scene, as one method: each scores the scene it was
-    trained on (``ckpt:DIR`` on the command line, e.g. one run of ``avgs train`` per scene)."""
+    trained on (``ckpt:DIR`` on the command line, e.g. one run of ``avgs train`` per scene).
+    ``member`` is the class each checkpoint becomes (the RIR task's evaluation uses its own)."""
+
+    member = CheckpointMethod
 
     def __init__(self, folder: str | Path, device: str = "cpu", synthesis: SynthesisConfig | None = None):
         self.folder = Path(folder)
         paths = sorted(self.folder.glob("*.ckpt"))
         if not paths:
             raise FileNotFoundError(f"{self.folder}: no *.ckpt files in this folder")
-        self.by_scene: dict[str, CheckpointMethod] = {}
+        self.by_scene: dict[str, CheckpointMethod] = {}  # of type self.member
         for path in paths:
-            method = CheckpointMethod(path, device=device, synthesis=synthesis)
+            method = self.member(path, device=device, synthesis=synthesis)
             name = method.scene_name or path.stem
             if name in self.by_scene:
                 raise ValueError(f"{self.folder}: two checkpoints for scene {name!r} ({self.by_scene[name].path.name}, {path.name})")
@@ -98,6 +101,10 @@ class CheckpointSetMethod:
 
     def __call__(self, clip: AudioClip, scene: RWAVSScene) -> Prediction:
         return self.by_scene[scene.name](clip, scene)
+
+    def for_scene(self, scene) -> CheckpointMethod:
+        """The checkpoint trained on ``scene`` (see :meth:`applies_to`)."""
+        return self.by_scene[scene.name]
 
 
 def method_names() -> list[str]:
@@ -240,16 +247,21 @@ def evaluate(
     return report
 
 
-def format_report(report: dict) -> str:
-    """Plain-text table: one row per scene, per environment and overall; MAG, ENV, ILD
-    error (dB) and MAGp per method."""
+COLUMNS = (("MAG", 9, ".3f"), ("ENV", 8, ".4f"), ("ILD", 6, ".2f"), ("MAGp", 8, ".3f"))
+"The binaural task's table columns: (metric, least width, format)."
+
+
+def format_report(report: dict, columns=COLUMNS, unit: str = "clips") -> str:
+    """Plain-text table: one row per scene, per environment and overall; per method the
+    ``columns`` (default: MAG, ENV, ILD error (dB) and MAGp), each ``(metric, least width, format)``."""
     names = list(report["methods"])
     label_w = max([len("overall")] + [len(s) + 6 for s in report["environments"]] + [len(e) + 6 for e in report["environments"].values()])
-    col_w = max(31, *(len(n) + 2 for n in names))
-    cols = (("MAG", col_w - 22, ".3f"), ("ENV", 8, ".4f"), ("ILD", 6, ".2f"), ("MAGp", 8, ".3f"))
+    col_w = max(sum(w for _, w, _ in columns), *(len(n) + 2 for n in names))
+    first = col_w - sum(w for _, w, _ in columns[1:])  # the first column takes the rest of a long method name
+    cols = ((columns[0][0], first, columns[0][2]), *columns[1:])
     head1 = " " * label_w + "".join(f"{n:>{col_w}}" for n in names)
     head2 = " " * label_w + "".join(f"{c:>{w}}" for c, w, _ in cols) * len(names)
-    lines = [f"{report['split']} clips: {sum(report['clips'].values())} in {len(report['clips'])} scene(s)", head1, head2]
+    lines = [f"{report['split']} {unit}: {sum(report['clips'].values())} in {len(report['clips'])} scene(s)", head1, head2]
 
     def row(label: str, pick) -> str:
         cells = []

@@ -25,6 +25,27 @@ and scaled back, so any finite input (1e-30 or 1e30) renders without underflow o
 
 Thread safety: :meth:`render` and :meth:`masks` serialise on an internal lock, so one
 worker thread may render while another thread reads the point arrays (read-only numpy).
+
+Two tasks (:attr:`SceneRenderer.task`, the checkpoint's ``task``):
+
+- ``binaural`` (RWAVS): one source position in training. A moved source (``source=``)
+  changes only the direction the ears hear it from (theta) and C_S; the model never heard a
+  source elsewhere, so its level and room response do not follow. :meth:`render` says so
+  once per renderer (:class:`OneSourceModel` warning); the explorer keeps the source fixed.
+- ``rir`` (impulse responses, ``avgs train --task rir``): trained on many source positions,
+  so the source is an input (:attr:`SceneRenderer.source_aware`). A pose's filter is the
+  predicted binaural response itself (:class:`~avgs.acoustics.rir_model.RIRModel`: log
+  magnitudes, and a waveform by ``RIRConfig.phase``); :meth:`render` convolves the input
+  with it (FFT; ``synthesis`` does not apply), :meth:`stream` is a
+  :class:`~avgs.acoustics.convolution.ConvolutionStream`, :meth:`masks` (and the mixture /
+  difference of every result) hold the response's long-term ear gains, so the propagation
+  map and the explorer's colours work unchanged; :meth:`predict_responses` is the batched
+  path ``avgs eval --task rir`` scores. Continuous yaw: the network reads the facing
+  through cos / sin of the yaw and of the direction to the source
+  (:mod:`avgs.acoustics.rir_binauralizer`); the yaw is taken modulo 360 first, so yaw 360
+  and yaw 0 give the same response exactly, and between the four trained facings the
+  network interpolates smoothly. A response is kept within :data:`HEADROOM_DB` as a
+  binaural filter is.
 """
 
 from __future__ import annotations
@@ -61,6 +82,14 @@ class PositionClamped(UserWarning):
 
 class HeadroomLimited(UserWarning):
     """A pose's ear filter gained more than HEADROOM_DB and was scaled down."""
+
+
+class OneSourceModel(UserWarning):
+    """A moved source was asked of a model trained with one source position (the binaural task)."""
+
+
+RESPONSE_CHUNK = 32
+"Poses per batch of :meth:`SceneRenderer.predict_responses`."
 
 
 @dataclass(frozen=True)
@@ -127,6 +156,7 @@ class SceneRenderer:
     ):
         from avgs.acoustics.model import AVGSModel
         from avgs.acoustics.points import AudioPoints
+        from avgs.acoustics.rir_model import RIRModel
 
         self.path = Path(path) if path is not None else None
         self.device = torch.device(device)
@@ -143,10 +173,12 @@ class SceneRenderer:
         "What the model was trained for: ``binaural`` (RWAVS: one source) or ``rir`` (impulse responses, sources anywhere)."
         pts = ckpt["audio_points"]
         fixed_k = ckpt.get("vicinity_k")  # set by pruning (avgs.prune): k kept from before
-        model = AVGSModel(
-            AudioPoints(pts["X"], pts["alpha"]), self.config.acoustic, self.stft,
-            vicinity_k=None if fixed_k is None else int(fixed_k),
-        )
+        points = AudioPoints(pts["X"], pts["alpha"])
+        k = None if fixed_k is None else int(fixed_k)
+        if self.task == "rir":
+            model = RIRModel(points, self.config.acoustic, self.config.rir, self.stft, vicinity_k=k)
+        else:
+            model = AVGSModel(points, self.config.acoustic, self.stft, vicinity_k=k)
         if model.field is not None:
             model.field.load_state_dict(ckpt["field"])
         model.binauralizer.load_state_dict(ckpt["binauralizer"])
@@ -158,6 +190,10 @@ class SceneRenderer:
         "The training source in the model's normalised frame."
         self._lock = threading.RLock()
         self._source_cache: tuple[tuple, tuple] | None = None  # (key, (C_S, idx))
+        self._warned_one_source = False
+        rir = ckpt.get("rir") or {}
+        self._training_sources = (None if rir.get("sources") is None else
+                                  _readonly(self.frame.to_world(rir["sources"].detach().double().cpu().numpy()).astype(np.float32)))
         tail = self.model.binauralizer.reverb
         self._tail = None if tail is None else TailShaper(tail.decay().detach(), self.stft)
         "The reverberant tail's decaying noise (scene-wide), shaped per pose by :meth:`binaural_filter`."
@@ -235,6 +271,11 @@ class SceneRenderer:
         return self.task == "rir"
 
     @property
+    def training_sources(self) -> np.ndarray | None:
+        """The source positions ``[S, 3]`` (world) of the responses an RIR checkpoint was trained on; None otherwise."""
+        return self._training_sources
+
+    @property
     def sample_rate(self) -> int:
         return int(self.stft.sample_rate)
 
@@ -293,6 +334,9 @@ class SceneRenderer:
 
     def _masks(self, listener, yaw: float, source) -> tuple[Masks, float, np.ndarray, np.ndarray]:
         """(masks within the headroom, theta radians, listener and source used [3], world)."""
+        if self.task == "rir":
+            m, _, theta, listener_w, source_w = self._rir_pose(listener, yaw, source)
+            return m, theta, listener_w, source_w
         (lis, theta, src), (listener_w, source_w) = self._pose(listener, yaw, source)
         masks = self.model.masks(lis, theta, src, self.source_context(src), self.cache)
         tensors = [t for t in (masks.mixture, masks.difference, masks.reverb, masks.decay) if t is not None]
@@ -300,6 +344,66 @@ class SceneRenderer:
             raise ValueError(f"{self.path or 'this checkpoint'}: the model gives NaN or Inf masks at listener "
                              f"{listener!r}, yaw {yaw!r}: its weights are not usable")
         return self._within_headroom(masks), float(theta[0]), listener_w, source_w
+
+    def _rir_pose(self, listener, yaw: float, source):
+        """Task rir: (masks of the response's ear gains, response [2, L] float32, both within the headroom;
+        theta radians; listener and source used [3], world). Call under the lock and inference mode."""
+        from avgs.acoustics.rir_model import ear_transfer, masks_of_gains, response_waveform
+
+        (lis, theta, src), (listener_w, source_w) = self._pose(listener, yaw, source)
+        yaw_rad = torch.tensor([math.radians(float(yaw) % 360.0)], dtype=torch.float64).to(self.device, self.dtype)  # [1]
+        log_mag, lis_idx, src_idx = self.model.log_magnitudes(lis, yaw_rad, src, self.cache, self.source_context(src))
+        mag = self.model.magnitudes(log_mag.float()).cpu()  # [1, 2, F, N]
+        rc = self.config.rir
+        h = response_waveform(mag, rc.length, self.stft, rc.phase, rc.phase_iterations)[0]  # [2, L]
+        gains = ear_transfer(mag, self.stft)[0].double()  # [2, F]
+        if not (bool(torch.isfinite(h).all()) and bool(torch.isfinite(gains).all())):
+            raise ValueError(f"{self.path or 'this checkpoint'}: the model gives a NaN or Inf response at listener "
+                             f"{listener!r}, yaw {yaw!r}: its weights are not usable")
+        peak_db = 10.0 * math.log10(max(float(gains.square().max()), 1e-300))
+        if peak_db > HEADROOM_DB:
+            c = 10.0 ** ((HEADROOM_DB - peak_db) / 20.0)
+            warnings.warn(f"the response at this pose gains {peak_db:.1f} dB in its loudest bin; scaled to "
+                          f"the {HEADROOM_DB:g} dB headroom", HeadroomLimited, stacklevel=4)
+            h, gains = h * c, gains * c
+        mixture, difference = masks_of_gains(gains[None])  # [1, F] each
+        m = Masks(mixture, difference, listener_vicinity=lis_idx, source_vicinity=src_idx[0])
+        return m, np.ascontiguousarray(h.numpy(), dtype=np.float32), float(theta[0]), listener_w, source_w
+
+    def predict_responses(self, source, receiver, yaw) -> np.ndarray:
+        """Task rir: predicted binaural responses ``[N, 2, L]`` float32 (channel 0 = left), batched.
+
+        source, receiver: ``[N, 3]`` in the model's **normalised** frame (the RIR scene's own
+        coordinates, ``avgs.data.rir``); yaw: ``[N]`` degrees. No clamping and no headroom
+        limit: the model's answer as it is, what ``avgs eval --task rir`` scores.
+        """
+        from avgs.acoustics.rir_model import response_waveform
+
+        if self.task != "rir":
+            raise ValueError(f"{self.path or 'this checkpoint'}: trained for the {self.task} task; "
+                             "impulse responses need a checkpoint of 'avgs train --task rir'")
+        src = np.asarray(source, dtype=np.float64).reshape(-1, 3)
+        rec = np.asarray(receiver, dtype=np.float64).reshape(-1, 3)
+        yaws = np.asarray(yaw, dtype=np.float64).reshape(-1)
+        if not (len(src) == len(rec) == len(yaws)):
+            raise ValueError(f"source {src.shape}, receiver {rec.shape} and yaw {yaws.shape} must have the same length N")
+        if not (np.all(np.isfinite(src)) and np.all(np.isfinite(rec)) and np.all(np.isfinite(yaws))):
+            raise ValueError("source, receiver and yaw must be finite")
+        rc = self.config.rir
+        out = np.empty((len(src), 2, rc.length), dtype=np.float32)
+        as_model = dict(device=self.device, dtype=self.dtype)
+        with self._lock, torch.inference_mode():
+            for i in range(0, len(src), RESPONSE_CHUNK):
+                sl = slice(i, i + RESPONSE_CHUNK)
+                log_mag, _, _ = self.model.log_magnitudes(
+                    torch.from_numpy(rec[sl]).to(**as_model), torch.from_numpy(np.radians(yaws[sl] % 360.0)).to(**as_model),
+                    torch.from_numpy(src[sl]).to(**as_model), self.cache)
+                h = response_waveform(self.model.magnitudes(log_mag.float()).cpu(), rc.length, self.stft, rc.phase,
+                                      rc.phase_iterations)
+                out[sl] = h.numpy()
+        if not np.all(np.isfinite(out)):
+            raise ValueError(f"{self.path or 'this checkpoint'}: the model gives NaN or Inf responses")
+        return out
 
     def _within_headroom(self, m: Masks) -> Masks:
         """The masks, scaled down when the pose's ear filter would gain more than HEADROOM_DB in a bin.
@@ -349,6 +453,12 @@ class SceneRenderer:
         predicted ear magnitudes with the source's phase and phase iterations
         (:class:`avgs.config.SynthesisConfig`). With ``magnitudes=True`` the result also holds
         the predicted ear magnitudes ``[2, F, N_t]`` (what AV-NeRF's MAGp scores).
+
+        ``source`` (world) moves the source. Task rir: the input convolved (FFT) with the
+        predicted binaural response for this listener, yaw and source (:meth:`binaural_filter`;
+        ``synthesis`` does not apply; ``magnitudes``: those of the output). Task binaural: the
+        model knows one source position, so a moved source changes only the direction; said
+        once per renderer by a :class:`OneSourceModel` warning.
         """
         x = np.asarray(mono, dtype=np.float32)
         if x.ndim == 2 and 1 in x.shape:
@@ -360,9 +470,20 @@ class SceneRenderer:
             raise ValueError("mono holds NaN or Inf samples")
         scale = peak if peak > 0 else 1.0  # processed at unit peak: no float32 under- or overflow
         synthesis = self.synthesis if synthesis is None else synthesis
+        if source is not None and not self.source_aware:
+            self._warn_one_source(source)
         with self._lock, torch.inference_mode():
-            m, theta, lis, src = self._masks(listener, yaw, source)
-            y, mags, top = self._synthesise(x, scale, m, synthesis, magnitudes)
+            if self.task == "rir":
+                m, h, theta, lis, src = self._rir_pose(listener, yaw, source)
+                y = convolve(torch.from_numpy(x / np.float32(scale)), torch.from_numpy(h)).numpy()  # [2, T]
+                top = _peak(y)
+                mags = None
+                if magnitudes and math.isfinite(top):
+                    mags = np.ascontiguousarray((dsp.magnitude(torch.from_numpy(y), self.stft).double().numpy()
+                                                 * scale).astype(np.float32))
+            else:
+                m, theta, lis, src = self._masks(listener, yaw, source)
+                y, mags, top = self._synthesise(x, scale, m, synthesis, magnitudes)
         if not math.isfinite(top):
             raise ValueError(f"{self.path or 'this checkpoint'}: the render at listener {listener!r} is not finite")
         limit = 10.0 ** (HEADROOM_DB / 20.0)  # the output's peak, relative to the input's (1 here)
@@ -372,6 +493,19 @@ class SceneRenderer:
             y *= np.float32(limit / top)
         y *= np.float32(scale)
         return self._result(m, theta, lis, src, binaural=y, magnitudes=mags)
+
+    def _warn_one_source(self, source) -> None:
+        """Say once per renderer that a one-source model hears a moved source only by its direction."""
+        if self._warned_one_source:
+            return
+        p = _position(source, "source")
+        if np.allclose(p, self.source, rtol=0.0, atol=1e-6 * max(1.0, float(np.abs(self.source).max()))):
+            return
+        self._warned_one_source = True
+        warnings.warn(
+            f"{self.path or 'this checkpoint'} was trained with one source position (the binaural task): a moved "
+            "source changes only the direction the ears hear it from, not its level or the room's response to it "
+            "(train with 'avgs train --task rir' for a model of any source position)", OneSourceModel, stacklevel=3)
 
     def _synthesise(self, x: np.ndarray, scale: float, m: Masks, synthesis: SynthesisConfig, magnitudes: bool = False,
                     impulse: np.ndarray | None = None):
@@ -428,6 +562,9 @@ class SceneRenderer:
             raise ValueError(f"{self.path or 'this checkpoint'}: trained with the time-frequency conv head "
                              "(--post-conv), whose output depends on the input: it is not a filter")
         with self._lock, torch.inference_mode():
+            if self.task == "rir":  # the predicted response is the filter
+                m, h, theta, lis, src = self._rir_pose(listener, yaw, source)
+                return self._result(m, theta, lis, src, impulse=h)
             m, theta, lis, src = self._masks(listener, yaw, source)
             return self._result(m, theta, lis, src, impulse=self._impulse(m))
 
@@ -482,6 +619,9 @@ class SceneRenderer:
                 "output depends on neighbouring frames; block streaming supports only the mask model. "
                 "Use render() on the whole signal."
             )
+        if self.task == "rir":  # the predicted response is the filter: convolution, whatever the synthesis
+            with self._lock, torch.inference_mode():
+                return ConvolutionStream(self._rir_pose(listener, yaw, source)[1])
         s = self.synthesis
         if s.method == "spectrogram" and (s.phase != "filter" or s.phase_iterations > 0):
             raise ValueError(f"{where}: a stream cannot do {s.phase_iterations} phase iterations from the {s.phase}'s "
@@ -496,8 +636,11 @@ class SceneRenderer:
         no click; safe from another thread than the one feeding it). Returns the new pose's
         masks and ``impulse``, as :meth:`binaural_filter`."""
         with self._lock, torch.inference_mode():
-            m, theta, lis, src = self._masks(listener, yaw, source)
-            impulse = self._impulse(m)
+            if self.task == "rir":
+                m, impulse, theta, lis, src = self._rir_pose(listener, yaw, source)
+            else:
+                m, theta, lis, src = self._masks(listener, yaw, source)
+                impulse = self._impulse(m)
             stream.set_pose(m.to(torch.float32), impulse)
             return self._result(m, theta, lis, src, impulse=impulse)
 

@@ -6,6 +6,9 @@ and convolves it with the current filter (:class:`avgs.acoustics.convolution.Blo
 uniformly partitioned, no added latency). A new pose's filter is taken at the next block
 and crossfaded over it, so a move is heard one block after its filter is known, with no
 re-render of the clip, no gap and no click. Volume and pause ramp over one block.
+:meth:`StreamEngine.play_once` plays a signal (the pose's impulse response itself) once
+instead of the clip: the clip fades out over one block, the signal plays sample for
+sample, then the clip fades back in where it stopped.
 
 :class:`AudioOutput` runs the engine from the sound card's callback, or, where there is
 no sound card (CI, these machines), from :class:`SimulatedClock`, a thread that pulls
@@ -25,6 +28,8 @@ from typing import Callable
 import numpy as np
 
 SILENCE_DB = -120.0
+ONCE_PEAK = 0.9
+"A signal played once (:meth:`StreamEngine.play_once`) peaks at most here (about -1 dB full scale)."
 
 
 # ---------------------------------------------------------------------- clips
@@ -125,6 +130,14 @@ def filter_levels(impulse: np.ndarray, spectrum: ClipSpectrum, gain: float = 1.0
 _NONE = object()
 
 
+class _Once:
+    """A signal being played once: its samples [L, 2] (gain applied) and how many have played."""
+
+    def __init__(self, samples: np.ndarray):
+        self.samples = samples
+        self.pos = 0
+
+
 def _block_convolver():
     from avgs.acoustics.convolution import BlockConvolver
 
@@ -171,6 +184,9 @@ class StreamEngine:
         self.volume = 0.8
         self.playing = True
         self.makeup_gain: float | None = None
+        self._once: _Once | None = None  # a signal played instead of the clip (play_once)
+        self.once_gain: float | None = None
+        "The gain of the newest signal played once (:meth:`play_once`)."
         self.live_tag = None
         self._fresh = _NONE
         self.blocks = 0              # blocks rendered with sound (not paused)
@@ -237,6 +253,45 @@ class StreamEngine:
             self._pending, self._pending_tag = True, tag
             self.filters_set += 1
 
+    @property
+    def playing_once(self) -> bool:
+        """Whether a signal handed to :meth:`play_once` has not finished playing."""
+        with self._lock:
+            return self._once is not None
+
+    def play_once(self, signal: np.ndarray) -> float:
+        """Play ``signal [2, L]`` (left, right) once instead of the clip, then the clip again.
+
+        The clip fades out over the next block (at once when nothing plays); the block after
+        it starts with the signal's first sample, times one gain (returned): volume x make-up
+        gain, lowered if need be so that the signal peaks at :data:`ONCE_PEAK`. It plays even
+        while paused (it was asked for); after it the clip fades back in where it stopped, or
+        stays paused. A second call replaces a signal still playing.
+        """
+        x = np.asarray(signal, dtype=np.float32)
+        if x.ndim != 2 or x.shape[0] != 2 or x.shape[1] == 0:
+            raise ValueError(f"a signal to play once must be [2, L] with L > 0, got shape {x.shape}")
+        if not np.all(np.isfinite(x)):
+            raise ValueError("a signal to play once has non-finite samples")
+        peak = float(np.max(np.abs(x)))
+        gain = float(self.volume) * (self.makeup_gain or 1.0)
+        if peak * gain > ONCE_PEAK:
+            gain = ONCE_PEAK / peak
+        samples = np.ascontiguousarray((x * np.float32(gain)).T)  # [L, 2]
+        with self._lock:
+            self._once = _Once(samples)
+            self.once_gain = gain
+        return gain
+
+    def _play_once_block(self, out: np.ndarray) -> None:
+        """The next block of the signal played once into ``out [n, 2]``. Under the lock."""
+        once, n = self._once, len(out)
+        part = once.samples[once.pos:once.pos + n]
+        out[:len(part)] = part
+        once.pos += n
+        if once.pos >= len(once.samples):
+            self._once = None
+
     def reset_gain(self) -> None:
         """Fit the make-up gain again on the next filter (a new scene)."""
         with self._lock:
@@ -274,9 +329,16 @@ class StreamEngine:
     def render_block(self) -> np.ndarray:
         """The next :attr:`block` output samples, [block, 2] float32 (advances the engine)."""
         n = self.block
-        target = float(self.volume) if self.playing else 0.0
         out = np.zeros((n, 2), dtype=np.float32)
         with self._lock:
+            once = self._once is not None
+            target = float(self.volume) if self.playing and not once else 0.0  # a signal played once: the clip fades out
+            if once and (self._gain == 0.0 or self._conv is None or self._clip is None):
+                self._play_once_block(out)  # the clip is silent: the signal plays as it is
+                self.blocks += 1
+                left, right = rms_db(out, axis=0)
+                self.block_levels = (float(left), float(right))
+                return out
             if self._conv is None or self._clip is None or (self._gain == 0.0 and target == 0.0):
                 self.block_levels = (SILENCE_DB, SILENCE_DB)
                 return out  # nothing to play yet, or paused: the position holds

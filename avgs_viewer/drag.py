@@ -5,6 +5,8 @@ the bottom left) to a :class:`DragController`. A press near a handle's projectio
 it; each move casts the mouse ray onto the horizontal plane at the handle's height
 (so the handle stays under the cursor and keeps its height) and writes the new position
 into the :class:`~avgs_viewer.state.ViewerState`, which clamps it to the scene bounds.
+A press on a handle the state keeps fixed (the source of a one-source scene) is taken, so
+the camera does not orbit instead, but moves nothing: the state says why (``refused``).
 The camera is reached only through a :class:`Projector`, so the logic is tested with a
 plain orthographic camera and used with VTK's in the window.
 """
@@ -82,6 +84,8 @@ class DragController:
         self.handle_radius = float(handle_radius)
         self.min_pick_pixels = float(min_pick_pixels)
         self.dragging: str | None = None
+        self.held: str | None = None
+        "A fixed handle pressed on: the press, its moves and its release are taken, and move nothing."
         self._offset = np.zeros(3)  # handle - hit point at press, so the handle does not jump
         self._height = 0.0
 
@@ -95,6 +99,10 @@ class DragController:
         name = pick_handle(proj, handles, x, y, self.handle_radius, self.min_pick_pixels)
         if name is None:
             return False
+        if name == "source" and not self.state.source_movable:
+            self.held = name
+            self.state.refuse_source_move()
+            return True
         self._height = float(handles[name][2])
         hit = ray_plane_z(*proj.ray(x, y), self._height)
         if hit is None:  # looking exactly along the plane: nothing sensible to drag
@@ -107,6 +115,8 @@ class DragController:
 
     def move(self, x: float, y: float) -> bool:
         """Move the grabbed handle under (x, y); True when a handle is being dragged."""
+        if self.held is not None:
+            return True
         if self.dragging is None:
             return False
         hit = ray_plane_z(*self._projector().ray(x, y), self._height)
@@ -122,6 +132,9 @@ class DragController:
 
     def release(self, x: float, y: float) -> bool:
         """Drop the handle after a last move to (x, y); True when one was being dragged."""
+        if self.held is not None:
+            self.held = None
+            return True
         if self.dragging is None:
             return False
         self.move(x, y)

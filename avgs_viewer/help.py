@@ -23,6 +23,7 @@ KEYS: tuple[Key, ...] = (
     Key("turn_left", ("Q", "Left"), "turn the listener 15 degrees to the left (counter-clockwise)"),
     Key("turn_right", ("E", "Right"), "turn the listener 15 degrees to the right"),
     Key("play", ("Space",), "play or pause the sound"),
+    Key("play_response", ("I",), "play the current pose's impulse response once, then the clip again"),
     Key("camera_home", ("R",), "camera: reset to the three-quarter view of the whole scene"),
     Key("camera_top", ("T",), "camera: from above (floor plan, +y up)"),
     Key("camera_front", ("F",), "camera: from the front (the -y side, level)"),
@@ -34,7 +35,8 @@ KEYS: tuple[Key, ...] = (
 
 MOUSE: tuple[tuple[str, str], ...] = (
     ("Left-drag a sphere", "move it: the blue listener (its arrow is the facing) at its own height, "
-                           "the yellow source at its height; both stay inside the room"),
+                           "the yellow source at its height; both stay inside the room. A scene trained "
+                           "with one source position keeps its source fixed"),
     ("Left-drag elsewhere", "orbit the camera"),
     ("Shift + left-drag, or middle-drag", "pan"),
     ("Right-drag, or the wheel", "zoom"),
@@ -42,7 +44,8 @@ MOUSE: tuple[tuple[str, str], ...] = (
 )
 
 FIELDS = ("Pose panel: type a listener x, y, z or yaw, or a source x, y, z, and press Enter; "
-          "a position outside the room is moved to the nearest place inside it, and the panel says so.")
+          "a position outside the room is moved to the nearest place inside it, and the panel says so. "
+          "The source's fields are read-only when the scene was trained with one source position.")
 
 
 def key(name: str) -> Key:

@@ -4,7 +4,8 @@ Each field mirrors the :class:`~avgs_viewer.state.ViewerState` (a drag or a key 
 it) and writes a typed value back when editing finishes (Enter or leaving the field). The
 fields accept any number: the state keeps the position inside the room, and the panel
 then shows where it went and says so in ``notice`` (the state's ``clamped`` event), rather
-than the field silently refusing the value.
+than the field silently refusing the value. When the state keeps the source fixed (a scene
+trained with one source position) its fields are read-only and ``source_note`` says why.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ from PySide6 import QtCore, QtWidgets
 from .state import ViewerState
 
 LIMIT = 1e6  # what a field accepts; the state, not the field, decides what is inside the room
+SOURCE_FIXED_NOTE = "<i>Source fixed:</i> the scene was trained with this source position only."
+"The note under the fields when the state keeps the source fixed (its tooltip: the state's whole reason)."
 
 
 def _field(suffix: str = "", decimals: int = 2) -> QtWidgets.QDoubleSpinBox:
@@ -52,10 +55,14 @@ class PosePanel(QtWidgets.QGroupBox):
         self.yaw.setToolTip("Degrees counter-clockwise from +x: 0 faces +x, 90 faces +y")
         grid.addWidget(QtWidgets.QLabel("Yaw"), 3, 0)
         grid.addWidget(self.yaw, 3, 1, 1, 2)
+        self.source_note = QtWidgets.QLabel()  # why the source is fixed (a one-source scene); hidden otherwise
+        self.source_note.setWordWrap(True)
+        self.source_note.hide()
+        grid.addWidget(self.source_note, 4, 0, 1, 4)
         self.notice = QtWidgets.QLabel()
         self.notice.setWordWrap(True)
         self.notice.setStyleSheet("color: #b35c00")
-        grid.addWidget(self.notice, 4, 0, 1, 4)
+        grid.addWidget(self.notice, 5, 0, 1, 4)
         self._notice_timer = QtCore.QTimer(self)
         self._notice_timer.setSingleShot(True)
         self._notice_timer.setInterval(8000)
@@ -80,6 +87,22 @@ class PosePanel(QtWidgets.QGroupBox):
         self._show_source(state.source)
         self._show_yaw(state.yaw)
         self.setToolTip(f"Positions are kept inside the {state.region}")
+        fixed = state.source_fixed
+        for box in self.source:
+            box.setReadOnly(fixed is not None)
+            box.setButtonSymbols(QtWidgets.QAbstractSpinBox.ButtonSymbols.NoButtons if fixed is not None
+                                 else QtWidgets.QAbstractSpinBox.ButtonSymbols.UpDownArrows)
+            box.setToolTip(fixed or "")
+        self.source_note.setText(SOURCE_FIXED_NOTE if fixed else "")
+        self.source_note.setToolTip(fixed or "")
+        self.source_note.setVisible(fixed is not None)
+
+    def resizeEvent(self, event) -> None:  # noqa: N802
+        """Keep the source note's wrapped lines whole when the window is short of height."""
+        super().resizeEvent(event)
+        note = self.source_note
+        if note.isVisible() and note.width() > 0:
+            note.setMinimumHeight(note.heightForWidth(note.width()))
 
     def _subscriptions(self):
         ev = self.state.events
@@ -114,7 +137,7 @@ class PosePanel(QtWidgets.QGroupBox):
             self._show_listener(self.state.listener)  # a clamped value shows where it went
 
     def _source_typed(self) -> None:
-        if self.state is not None:
+        if self.state is not None and self.state.source_movable:  # read-only fields when it is fixed
             self.state.set_source([b.value() for b in self.source])
             self._show_source(self.state.source)
 

@@ -438,6 +438,11 @@ class ListenerInset:
     def _failed(self, seq, request, exc) -> None:
         self.available = False
 
+    def relayout(self) -> None:
+        """Place the inset and its caption again for the view's new size (its aspect changed)."""
+        if self._subscriptions and self.image is not None:
+            self._rep = show_inset(self.plotter, self.image, self._rep, self._corner, self._extent)
+
     # plotter thread
     def _show(self, pose, image: np.ndarray) -> None:
         if not self._subscriptions:
@@ -523,6 +528,11 @@ class MapControls:
                 part.close()
         self.view = self.inset = None
         self.note.clear()
+
+    def relayout(self) -> None:
+        """The 3D view was resized: place the listener-view inset again."""
+        if self.inset is not None:
+            self.inset.relayout()
 
     def _changed(self, _index: int) -> None:
         if self.view is not None:

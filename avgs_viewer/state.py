@@ -8,7 +8,8 @@ a widget that mirrors the state can set it back without an endless loop.
 Coordinates are world coordinates, yaw is degrees counter-clockwise from +x
 (ARCHITECTURE.md). A drag moves the listener at its own height, the source anywhere;
 both stay inside the room's floor plan (``avgs_viewer.outline``), or the scene's box when
-the checkpoint has no outline.
+the checkpoint has no outline. A scene trained with one source position keeps its source
+where it is (``source_fixed``): a move is refused with the reason (the ``refused`` event).
 """
 
 from __future__ import annotations
@@ -58,8 +59,9 @@ class ViewerEvents:
     """One :class:`Event` per state field, plus ``pose`` for any listener/yaw/source change."""
 
     NAMES = ("listener", "yaw", "source", "pose", "colour_mode", "slice_height",
-             "volume", "playing", "interacting", "clamped")
-    "``clamped`` carries a message naming a position that was moved back inside the scene."
+             "volume", "playing", "interacting", "clamped", "refused")
+    """``clamped`` carries a message naming a position that was moved back inside the scene;
+    ``refused`` the reason a move was refused (the source of a one-source scene)."""
 
     def __init__(self):
         for name in self.NAMES:
@@ -88,10 +90,13 @@ class ViewerState:
     ``bounds`` [2, 3] world (min corner, max corner) constrains both positions; with the
     room's ``outline`` ([K, 2, 3] world segments, ``SceneRenderer.outline``) they are kept
     inside its floor plan and height instead (:class:`~avgs_viewer.outline.Footprint`).
+    ``source_fixed``: why the source cannot move (a scene trained with one source position),
+    or None when it can; a refused move leaves it where it is and emits ``refused``.
     """
 
     def __init__(self, bounds: np.ndarray, source: Any, listener: Any = None, yaw: float = 0.0,
-                 colour_mode: ColourMode = ColourMode.VICINITY, has_rgb: bool = False, outline: Any = None):
+                 colour_mode: ColourMode = ColourMode.VICINITY, has_rgb: bool = False, outline: Any = None,
+                 source_fixed: str | None = None):
         bounds = np.asarray(bounds, dtype=np.float64)
         if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or np.any(bounds[1] < bounds[0]):
             raise ValueError(f"bounds must be [2, 3] finite (min, max) corners with max >= min, got {bounds!r}")
@@ -100,6 +105,8 @@ class ViewerState:
         self.region = "room" if self.footprint.from_outline else "scene"
         "What positions are kept inside, in words: the room (its outline) or the scene (its box)."
         self.has_rgb = bool(has_rgb)
+        self.source_fixed = source_fixed or None
+        "Why the source cannot move, in words; None when it can."
         self.events = ViewerEvents()
         self._source = self._clamp(_vec3(source, "source"))
         if listener is None:
@@ -179,8 +186,21 @@ class ViewerState:
     def source(self) -> np.ndarray:
         return self._source.copy()
 
+    @property
+    def source_movable(self) -> bool:
+        return self.source_fixed is None
+
+    def refuse_source_move(self) -> None:
+        """Say why the source stays where it is (``refused``), as an attempt to move it does."""
+        if self.source_fixed is not None:
+            self.events.refused.emit(self.source_fixed)
+
     def set_source(self, xyz: Any) -> None:
-        """Move the source anywhere inside the room."""
+        """Move the source anywhere inside the room; refused (``refused`` says why) when it is fixed."""
+        if self.source_fixed is not None:
+            _vec3(xyz, "source")  # a bad value is still an error
+            self.refuse_source_move()
+            return
         xyz = self._clamp(_vec3(xyz, "source"), "source")
         if np.array_equal(xyz, self._source):
             return

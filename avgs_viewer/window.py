@@ -7,7 +7,11 @@ events to the Qt-free :class:`~avgs_viewer.drag.DragController`; mirrors the
 path first (:class:`~avgs_viewer.worker.LiveAudio`: the pose's filter on a worker, then
 the audio engine's next block) and only asks for a repaint; results come back to the GUI
 thread with a queued signal. The model never runs on the GUI thread: checkpoints load on
-a background thread too, so the window shows before torch is even imported.
+a background thread too, so the window shows before torch is even imported. Under the 3D view,
+the :class:`~avgs_viewer.response_view.ResponsePanel` shows the impulse response the engine plays
+(the worker's filter: nothing is computed for it but its decay curves) and plays it on request.
+A scene trained with one source position (``SceneRenderer.source_aware`` False) keeps its source
+where it is, and the pose panel says why.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from .help import help_html
 from .help import key as help_key
 from .pose_panel import PosePanel
 from .propagation_view import MapControls
+from .response_view import ResponsePanel
 from .scene_view import SceneView
 from .state import ColourMode, ViewerState
 
@@ -36,6 +41,9 @@ YAW_STEP = 15.0
 METER_FLOOR_DB = -60.0
 METER_INTERVAL_MS = 500
 SHOW_MS = 150
+RESPONSE_HEIGHT = 200  # the impulse-response panel's height under the 3D view at start, pixels
+FIXED_SOURCE_REASON = ("Trained with one source position (RWAVS task): the sound is only known for that source, "
+                       "so the source stays fixed. Train with --task rir to move it.")
 
 
 class _Bridge(QtCore.QObject):
@@ -253,8 +261,16 @@ class MainWindow(QtWidgets.QMainWindow):
         self.panel = ControlPanel()
         self.map_controls = MapControls(self)  # propagation map toggle (panel) and listener-view inset
         self.panel.layout().insertWidget(self.panel.layout().count() - 1, self.map_controls.box)
+        self.response = ResponsePanel(key_text=help_key("play_response").keys[0])
+        self.response.play.connect(self.play_response)
+        self.view_split = QtWidgets.QSplitter(QtCore.Qt.Orientation.Vertical)  # the 3D view over the response
+        self.view_split.addWidget(self.plotter)
+        self.view_split.addWidget(self.response)
+        self.view_split.setStretchFactor(0, 1)
+        self.view_split.setCollapsible(0, False)
+        self.view_split.setSizes([800 - RESPONSE_HEIGHT, RESPONSE_HEIGHT])
         splitter = QtWidgets.QSplitter()
-        splitter.addWidget(self.plotter)
+        splitter.addWidget(self.view_split)
         splitter.addWidget(self.panel)
         splitter.setStretchFactor(0, 1)
         splitter.setSizes([1000, 280])
@@ -270,7 +286,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self._notice_timer = QtCore.QTimer(self)
         self._notice_timer.setSingleShot(True)
         self._notice_timer.setInterval(5000)
-        self._notice_timer.timeout.connect(self.position_notice.clear)
+        self._notice_timer.timeout.connect(lambda: (self.position_notice.clear(), self.position_notice.setToolTip("")))
         self.statusBar().addPermanentWidget(self.position_notice)
         self.audio_status = QtWidgets.QLabel()
         self.statusBar().addPermanentWidget(self.audio_status)
@@ -283,6 +299,10 @@ class MainWindow(QtWidgets.QMainWindow):
         self._show_timer = QtCore.QTimer(self)
         self._show_timer.setSingleShot(True)
         self._show_timer.timeout.connect(self._show_heard)
+        self._relayout_timer = QtCore.QTimer(self)  # the 3D view's overlays placed again after a resize
+        self._relayout_timer.setSingleShot(True)
+        self._relayout_timer.setInterval(0)
+        self._relayout_timer.timeout.connect(self._relayout)
         self.meter_timer = QtCore.QTimer(self)  # runs only while sound plays
         self.meter_timer.setInterval(METER_INTERVAL_MS)
         self.meter_timer.timeout.connect(self._update_meters)
@@ -307,9 +327,34 @@ class MainWindow(QtWidgets.QMainWindow):
         self._action(view_menu, "Play / pause", lambda: self.state and self.state.toggle_playing(), "play")
         self._action(view_menu, "Turn left", lambda: self.state and self.state.turn(YAW_STEP), "turn_left")
         self._action(view_menu, "Turn right", lambda: self.state and self.state.turn(-YAW_STEP), "turn_right")
+        view_menu.addSeparator()
+        self._action(view_menu, "Play the &impulse response", self.play_response, "play_response")
+        self.response_action = self._action(view_menu, "Impulse response &panel", self._toggle_response)
+        self.response_action.setCheckable(True)
+        self.response_action.setChecked(True)
         help_menu = self.menuBar().addMenu("&Help")
         self._action(help_menu, "&Keys and mouse", self.show_help, "help")
         self.help_dialog: QtWidgets.QMessageBox | None = None
+
+    def _relayout(self) -> None:
+        if self.view is not None:
+            self.map_controls.relayout()
+            self.plotter.render()
+
+    def _toggle_response(self) -> None:
+        self.response.setVisible(self.response_action.isChecked())
+
+    def play_response(self) -> None:
+        """Play the current pose's impulse response once through the engine, then the clip again."""
+        heard = None if self.live is None else self.live.heard
+        if heard is None or self.engine is None:
+            self.statusBar().showMessage("No impulse response yet: wait for the scene to load", 3000)
+            return
+        impulse = heard.result.impulse
+        self.engine.play_once(impulse)
+        self.meter_timer.start()
+        self.statusBar().showMessage(
+            f"Playing this pose's impulse response ({1000 * impulse.shape[1] / self.engine.sample_rate:.0f} ms)", 3000)
 
     def camera_preset(self, name: str) -> None:
         """One of the view's camera presets: camera_home, camera_top, camera_front, camera_listener."""
@@ -356,8 +401,10 @@ class MainWindow(QtWidgets.QMainWindow):
             gc.disable()
             try:
                 from avgs import SceneRenderer  # torch is imported here, off the GUI thread
+                from avgs.metrics import rt60
 
                 renderer = SceneRenderer.load(path)
+                rt60(np.zeros(1))  # its imports too (the response panel's T60), not on the GUI thread
             except Exception as exc:  # every failure becomes a dialog, never a crash
                 message = str(exc) if isinstance(exc, (ValueError, FileNotFoundError)) else \
                     f"{type(exc).__name__}: {exc}\n\n{traceback.format_exc(limit=3)}"
@@ -402,8 +449,11 @@ class MainWindow(QtWidgets.QMainWindow):
         from .worker import LiveAudio
 
         self._teardown_scene()
+        # Positions stay inside the room's floor plan; a model trained with one source position knows
+        # its sound only for that source: the source stays there (keyed on the renderer alone).
         state = ViewerState(renderer.bounds, renderer.source, has_rgb=renderer.gaussians is not None,
-                            outline=renderer.outline)  # positions stay inside the room's floor plan
+                            outline=renderer.outline,
+                            source_fixed=None if renderer.source_aware else FIXED_SOURCE_REASON)
         self.plotter.clear()
         view = SceneView(self.plotter, renderer, state)
         self.renderer, self.state, self.view = renderer, state, view
@@ -415,6 +465,9 @@ class MainWindow(QtWidgets.QMainWindow):
             self._start_engine(renderer.sample_rate)
         self.engine.reset_gain()
         state.events.clamped.connect(self._show_position_notice)
+        state.events.refused.connect(self._show_position_notice)
+        state.events.interacting.connect(self._interaction_changed)
+        self.response.show_response(None, renderer.sample_rate)
         state.events.volume.connect(lambda v: setattr(self.engine, "volume", v))
         state.events.playing.connect(self._set_playing)
         self.engine.volume = state.volume
@@ -448,6 +501,7 @@ class MainWindow(QtWidgets.QMainWindow):
     def _show_position_notice(self, message: str) -> None:
         """Say for 5 s that a dragged position was kept inside the scene (ViewerState's ``clamped``)."""
         self.position_notice.setText(message)
+        self.position_notice.setToolTip(message)  # whole, where a narrow window clips it
         self._notice_timer.start()
 
     def _start_engine(self, sample_rate: int) -> None:
@@ -482,12 +536,20 @@ class MainWindow(QtWidgets.QMainWindow):
             moving = self.state is not None and self.state.interacting
             self._show_timer.start(SHOW_MS if moving else 0)
 
+    def _interaction_changed(self, moving: bool) -> None:
+        """A move ended: show the pose heard now in full (the response's T60 is measured only then)."""
+        live = self.live
+        if not moving and live is not None and live.heard is not None and live.worker.wait_idle(0.0):
+            self._on_rendered(live.heard)  # (when a newer pose is on its way, that one is shown in full)
+
     def _show_heard(self) -> None:
         heard = self._shown_heard
         if self.view is None or self.live is None or heard is None or heard is not self.live.heard:
             return  # a newer pose (or another scene) has replaced it
         self.view.set_vicinity(heard.result.listener_vicinity, heard.result.source_vicinity)
         self.panel.show_levels(*heard.levels)  # the clip through this pose's filter, at full volume
+        self.response.show_response(heard.result.impulse, self.renderer.sample_rate,  # the filter it plays
+                                    moving=self.state.interacting)
 
     def _on_render_failed(self, request: Any, message: str) -> None:
         self.statusBar().showMessage(f"Render failed: {message}", 10000)
@@ -515,6 +577,8 @@ class MainWindow(QtWidgets.QMainWindow):
     def eventFilter(self, obj: QtCore.QObject, event: QtCore.QEvent) -> bool:  # noqa: N802
         """Forward left-button drags that start on a handle to the drag logic; the rest to VTK."""
         kind = event.type()
+        if obj is self.plotter and kind == QtCore.QEvent.Type.Resize and self.view is not None:
+            self._relayout_timer.start()  # once the render window has its new size
         if obj is self.plotter and self.drag is not None and kind in (
                 QtCore.QEvent.Type.MouseButtonPress, QtCore.QEvent.Type.MouseMove,
                 QtCore.QEvent.Type.MouseButtonRelease):

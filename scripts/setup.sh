@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Sets up everything `make run` and `make test` need on a fresh Debian machine with
 # Python 3.11: the system libraries of DESIGN.md §7, a .venv, torch==2.13.0 (CPU wheel)
-# and this package in editable mode with its test extras. Safe to run twice: each step
-# is skipped when its result is already there.
+# and this package in editable mode with its test and scale (Ray, for avgs sweep) extras.
+# Safe to run twice: each step is skipped when its result is already there.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -44,6 +44,6 @@ want="$(sha256sum pyproject.toml | cut -d' ' -f1)"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   .venv/bin/python -m pip install -q --upgrade pip
   .venv/bin/python -m pip install -q "torch==2.13.0"
-  .venv/bin/python -m pip install -q -e ".[test]"
+  .venv/bin/python -m pip install -q -e ".[test,scale]"
   echo "$want" > "$stamp"
 fi

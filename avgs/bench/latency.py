@@ -5,6 +5,12 @@ A "pose" is one call of :meth:`SceneRenderer.render` on a 1 s clip at a new list
 position (the source stays put, so C_S comes from the cache, as in the viewer). Poses
 cycle over random positions inside the scene box; every figure is a median (and 95th
 percentile) over ``repeats`` calls after ``warmup`` untimed ones.
+
+A source-aware checkpoint (the impulse-response task, ``SceneRenderer.source_aware``) gets
+its own, smaller set (:func:`measure_source_aware`): the per-pose cost of
+``render(listener, yaw, mono, source=...)`` of a 1 s clip with the source moved at every
+call (so C_S is recomputed: the worst case), and its stages (the vicinities and F, the RIR
+network, the waveform from its log magnitudes, the convolution).
 """
 
 from __future__ import annotations
@@ -107,10 +113,79 @@ def precision_error(renderer, other, poses, mono) -> float:
     return worst
 
 
+def random_sources(renderer, n: int, seed: int = 1) -> list[np.ndarray]:
+    """``n`` source positions (world [3]) inside the scene box (middle 80 %)."""
+    return [lis for lis, _ in random_poses(renderer, n, seed)]
+
+
+def measure_source_aware(renderer, repeats: int = 50, progress=None) -> dict:
+    """Latency of a source-aware renderer (task rir): render with a new source every call, and its stages."""
+    from avgs.acoustics.impulse_response import convolve
+    from avgs.acoustics.rir_model import response_waveform
+
+    dev = renderer.device
+    mono = test_signal(1.0, renderer.sample_rate)
+    poses = random_poses(renderer, 64)
+    sources = random_sources(renderer, 64)
+    say = progress or (lambda msg: None)
+    out: dict = {"device": str(dev), "points": int(len(renderer.points)), "k": int(renderer.vicinity_size),
+                 "task": renderer.task, "response_samples": int(renderer.config.rir.length),
+                 "phase": renderer.config.rir.phase + (f" {renderer.config.rir.phase_iterations}"
+                                                       if renderer.config.rir.phase == "griffin-lim" else "")}
+    state = {"i": 0}
+
+    def moving(l, y, m):
+        state["i"] += 1
+        return renderer.render(l, y, m, source=sources[state["i"] % len(sources)])
+
+    say(f"latency ({dev}): source-aware render")
+    out["render"] = time_render(moving, poses, mono, repeats, device=dev).to_dict()
+    out["source_aware"] = out["render"]
+    threads = torch.get_num_threads()
+    if dev.type == "cpu" and threads != 1:
+        torch.set_num_threads(1)
+        try:
+            out["render_1_thread"] = time_render(moving, poses, mono, repeats).to_dict()
+        finally:
+            torch.set_num_threads(threads)
+    out["fixed_source"] = time_render(lambda l, y, m: renderer.render(l, y, m), poses, mono, repeats, device=dev).to_dict()
+    out["masks"] = time_render(lambda l, y, m: renderer.masks(l, y), poses, mono, repeats, device=dev).to_dict()
+    model, cache, rc = renderer.model, renderer.cache, renderer.config.rir
+    sw = Stopwatch()
+    with torch.inference_mode():
+        for i in range(repeats + 3):
+            lis_w, yaw = poses[i % len(poses)]
+            lis, _, src = renderer.pose(lis_w, yaw, sources[i % len(sources)])
+            yaw_t = torch.tensor([np.radians(yaw % 360.0)], dtype=lis.dtype, device=lis.device)
+            timed = i >= 3
+
+            def run(name, fn):
+                if not timed:
+                    return fn()
+                with sw(name):
+                    value = fn()
+                    _sync(dev)
+                return value
+
+            ctx = run("vicinity + field", lambda: model.contexts(lis, src[None], cache))
+            from avgs.data.frame import signed_direction
+
+            theta = signed_direction(lis, yaw_t, src[None])
+            log_mag = run("network", lambda: model.binauralizer(lis, src[None], theta, yaw_t, ctx[0], cache.frequency))
+            h = run("waveform", lambda: response_waveform(model.magnitudes(log_mag.float()).cpu(), rc.length, renderer.stft,
+                                                          rc.phase, rc.phase_iterations)[0])
+            run("convolution", lambda: convolve(torch.from_numpy(mono), h))
+    out["stages"] = {k: v.to_dict() for k, v in sw.timings().items()}
+    return out
+
+
 def measure(renderer, repeats: int = 50, long_seconds=(10.0, 60.0), long_repeats: int = 3, compare: bool = True,
             precisions=("bfloat16",), progress=None) -> dict:
     """All latency figures of one renderer (its device); see the module docstring."""
     from avgs.bench.reference import TrainingModePath, UncachedPath
+
+    if getattr(renderer, "source_aware", False):
+        return measure_source_aware(renderer, repeats, progress)
 
     dev = renderer.device
     sr = renderer.sample_rate

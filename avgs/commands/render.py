@@ -1,5 +1,10 @@
-"""``avgs render scene.ckpt --listener X Y Z --yaw DEG --input mono.wav --output out.wav``:
-binauralise a mono (or down-mixed stereo) WAV for one listener pose, world coordinates."""
+"""``avgs render scene.ckpt --listener X Y Z --yaw DEG --input mono.wav --output out.wav [--source X Y Z]``:
+binauralise a mono (or down-mixed stereo) WAV for one listener pose, world coordinates.
+
+With a checkpoint of the impulse-response task (``avgs train --task rir``) ``--source`` puts
+the source anywhere: the input is convolved with the predicted binaural response. With a
+one-source (binaural task) checkpoint a moved source changes only its direction, and the
+command says so."""
 
 from __future__ import annotations
 
@@ -13,7 +18,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", metavar="scene.ckpt", help="Checkpoint written by 'avgs train'.")
     parser.add_argument("--listener", nargs=3, type=float, required=True, metavar=("X", "Y", "Z"), help="Listener position, world.")
     parser.add_argument("--yaw", type=float, required=True, metavar="DEG", help="Listener facing, degrees ccw from +x.")
-    parser.add_argument("--source", nargs=3, type=float, metavar=("X", "Y", "Z"), help="Move the source (world; default: the trained one).")
+    parser.add_argument("--source", nargs=3, type=float, metavar=("X", "Y", "Z"),
+                        help="Move the source (world; default: the trained one). A checkpoint of --task rir renders the "
+                             "source there; a one-source checkpoint changes only the direction it is heard from.")
     parser.add_argument("--input", required=True, metavar="mono.wav", help="Input audio, any length; stereo is down-mixed.")
     parser.add_argument("--output", required=True, metavar="out.wav", help="Binaural output (2 channels, float WAV).")
     parser.add_argument("--device", default="cpu", help="Torch device (cpu or cuda).")
@@ -49,5 +56,6 @@ def run(args: argparse.Namespace) -> int:
     out = renderer.render(args.listener, args.yaw, mono, source=args.source)
     write_wav(args.output, out.binaural, renderer.sample_rate)
     side = "left" if out.theta > 0 else "right" if out.theta < 0 else "ahead"
-    print(f"wrote {args.output} ({out.binaural.shape[1]} samples, source {abs(out.theta):.0f} deg to the {side})")
+    how = "; the predicted response of this source position" if renderer.source_aware else ""
+    print(f"wrote {args.output} ({out.binaural.shape[1]} samples, source {abs(out.theta):.0f} deg to the {side}{how})")
     return 0

@@ -1,6 +1,12 @@
 """``avgs synth OUT_ROOT --preset office --scene-id office_1 --poses 100 --seed 0``:
 generate one synthetic scene with physical ground truth in the RWAVS layout
-(:mod:`avgs.data.synth`), and merge its source into ``OUT_ROOT/position.json``."""
+(:mod:`avgs.data.synth`), and merge its source into ``OUT_ROOT/position.json``.
+
+``avgs synth OUT_ROOT --task rir --preset rect_small``: an impulse-response scene (the same
+RWAVS files for source 0, plus ``rir/``: binaural responses of every source, receiver and
+orientation of a grid; docs/rir-layout.md). ``--task rir`` takes the six impulse-response
+presets only; ``--task binaural`` takes every preset (an impulse-response preset's room makes
+an ordinary binaural scene)."""
 
 from __future__ import annotations
 
@@ -10,12 +16,19 @@ import dataclasses
 from avgs.commands.flags import field_help
 
 
+TASKS = ("binaural", "rir")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from avgs.data.synth.presets import PRESETS
+    from avgs.data.synth.presets import ALL_PRESETS, RIR_PRESETS
     from avgs.data.synth.writer import SynthConfig
 
     parser.add_argument("out_root", metavar="OUT_ROOT", help="Data root; the scene goes to OUT_ROOT/SCENE_ID.")
-    parser.add_argument("--preset", choices=PRESETS, default="office", help=field_help(SynthConfig, "preset"))
+    parser.add_argument("--task", choices=TASKS, default="binaural",
+                        help="binaural: an RWAVS scene (a binaural recording along listener poses); rir: an impulse-response "
+                             f"scene (RWAVS files for source 0 plus rir/, docs/rir-layout.md; presets {', '.join(RIR_PRESETS)}).")
+    parser.add_argument("--preset", choices=ALL_PRESETS, default=None,
+                        help=field_help(SynthConfig, "preset") + " (default office; rect_small with --task rir)")
     parser.add_argument("--scene-id", metavar="ID", help="Scene folder name (default: PRESET_SEED).")
     parser.add_argument("--poses", type=int, metavar="N", help=field_help(SynthConfig, "poses") + " (default 100; 20 with --quick)")
     parser.add_argument("--seed", type=int, default=0, help=field_help(SynthConfig, "seed"))
@@ -26,6 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--width", type=int, metavar="PX", help=field_help(SynthConfig, "width") + " (default 256; 64 with --quick)")
     parser.add_argument("--height", type=int, metavar="PX", help=field_help(SynthConfig, "height") + " (default 192; 48 with --quick)")
     parser.add_argument("--fov", type=float, metavar="DEG", help=field_help(SynthConfig, "fov_deg") + " (default 70)")
+    parser.add_argument("--receiver-spacing", type=float, metavar="M",
+                        help="--task rir: receiver grid spacing in metres (default: the preset's).")
+    parser.add_argument("--source-spacing", type=float, metavar="M",
+                        help="--task rir: source grid spacing in metres (default: the preset's).")
     parser.add_argument("--raw-hrtf", action="store_true",
                         help="Keep the KEMAR head's own response instead of diffuse-field equalising it "
                              "(the ears' colouration stays in the audio, as in a binaural recording).")
@@ -33,8 +50,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def config_from_args(args: argparse.Namespace):
+    """The :class:`SynthConfig` of ``--task binaural`` (and of the RWAVS part of ``--task rir``)."""
     from avgs.data.synth.writer import SynthConfig
 
+    if args.preset is None:
+        args.preset = "office"
     cfg = SynthConfig.quick_config(args.preset, args.seed) if args.quick else SynthConfig(preset=args.preset, seed=args.seed)
     cfg.val_fraction = args.val_fraction
     cfg.workers = args.workers
@@ -54,9 +74,54 @@ def config_from_args(args: argparse.Namespace):
     return cfg
 
 
+def rir_config_from_args(args: argparse.Namespace):
+    """The :class:`RIRConfig` of ``--task rir``: the preset's grid and the hybrid simulation;
+    the RWAVS part takes the binaural flags (--poses, --width, --height, --fov, --raw-hrtf)."""
+    from avgs.data.synth.rir_writer import RIRConfig
+
+    if args.preset is None:
+        args.preset = "rect_small"
+    make = RIRConfig.quick_config if args.quick else RIRConfig
+    cfg = make(preset=args.preset, seed=args.seed, workers=args.workers)
+    cfg.validate()  # the preset first: a binaural preset is refused by name
+    synth = config_from_args(args)
+    cfg.binaural = dataclasses.replace(synth, sim=dataclasses.replace(cfg.binaural.sim, hrtf_equalised=synth.sim.hrtf_equalised))
+    changes = {"val_fraction": args.val_fraction}
+    if args.receiver_spacing is not None:
+        changes["receiver_spacing"] = args.receiver_spacing
+    if args.source_spacing is not None:
+        changes["source_spacing"] = args.source_spacing
+    cfg.grid = dataclasses.replace(cfg.grid_config(), **changes)
+    cfg.validate()
+    return cfg
+
+
+def run_rir(args: argparse.Namespace) -> int:
+    from avgs.data.synth.rir_writer import write_rir_scene
+
+    cfg = rir_config_from_args(args)
+    scene_id = args.scene_id or f"{cfg.preset}_{cfg.seed}"
+    result = write_rir_scene(args.out_root, scene_id, cfg, overwrite=args.overwrite, progress=not args.no_progress)
+    g = result.grid
+    counts = ", ".join(f"{len(g.splits[k])} {k}" for k in ("train", "val", "heldout"))
+    rt = result.scene.rt60.get("broadband_s")
+    rt_text = f"{rt:.3f} s" if rt is not None else "n/a"
+    print(
+        f"wrote {result.scene.scene_dir}: {len(g.sources)} sources x {len(g.receivers)} receivers ({counts} pairs), "
+        f"{result.responses} responses of {result.length} samples; RT60 {rt_text}; responses {result.seconds_responses:.1f} s "
+        f"({result.cpu_seconds_per_room:.2f} s per room on one core), {result.seconds_total:.1f} s in all"
+    )
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from avgs.data.synth.writer import write_scene
 
+    if args.task == "rir":
+        return run_rir(args)
+    for flag in ("receiver_spacing", "source_spacing"):
+        if getattr(args, flag) is not None:
+            raise ValueError(f"--{flag.replace('_', '-')} applies to --task rir only")
     cfg = config_from_args(args)
     scene_id = args.scene_id or f"{cfg.preset}_{cfg.seed}"
     result = write_scene(args.out_root, scene_id, cfg, overwrite=args.overwrite, progress=not args.no_progress)

@@ -5,7 +5,7 @@ and the wheels that machine's Python 3.12 lacks (it reaches no package index).
 
     .venv/bin/python scripts/device/prepare.py data/rawhrtf/office_0 data/rawhrtf/house_0 [--frames]
 
-Then name the folders in the device call's ``carry`` (see ``cli_batch.sh`` and ``h100.sh``).
+Then name the folders in the device call's ``carry`` (see ``h100.sh``).
 """
 
 from __future__ import annotations

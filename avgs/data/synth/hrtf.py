@@ -161,3 +161,14 @@ def pra_file_reader(sample_rate: int, equalised: bool = True):
         return hrirs.irs, hrirs.sample_rate, directions, np.zeros((3, 2)), None, ["left", "right"]
 
     return reader
+
+
+@functools.lru_cache(maxsize=4)
+def frontal_delay(sample_rate: int = STFT.sample_rate, equalised: bool = True) -> int:
+    """The head's own delay in samples: where its response to a source straight ahead
+    (azimuth 0, elevation 0; both ears summed) peaks, counted from the response's first tap
+    (23 at 22050 Hz equalised). pyroomacoustics places each image source's HRIR from that
+    first tap, so responses carry this delay on top of the propagation."""
+    hrirs = kemar(sample_rate, equalised)
+    i = int(np.argmin(np.abs(hrirs.azimuth_deg) + np.abs(hrirs.elevation_deg)))
+    return int(np.argmax(np.abs(hrirs.irs[i].sum(axis=0))))

@@ -15,6 +15,17 @@ Presets (:func:`make_spec`), each randomised mildly by the seed:
 - ``outdoor``: paved ground and two reflecting building facades at a corner; the other
   sides and the sky are an open (nearly anechoic) boundary.
 
+Impulse-response presets (:data:`RIR_PRESETS`, for ``avgs synth --task rir``), mirroring the
+six SoundSpaces layouts of the AV-GS paper, two per :data:`RIR_ENVIRONMENTS` kind; their
+``environment`` is that kind ("rectangular", "non-rectangular", "multi-room"):
+
+- ``rect_small``: a small absorbent shoebox room (carpet, curtains); ``rect_large``: a large
+  shoebox hall (brick, glass, wooden floor, acoustic ceiling), more reverberant.
+- ``l_room``: an L-shaped living room; ``u_room``: a U-shaped room (a courtyard notch in the
+  middle of one side).
+- ``two_rooms``: two rooms joined by a door opening in a partition wall; ``three_rooms``: three
+  rooms in a row, each partition with its own door.
+
 Every :class:`Surface` is oriented as pyroomacoustics requires: its normal (right-hand
 rule over the corners) points out of the air, i.e. out of the room and into a box.
 """
@@ -28,7 +39,13 @@ import numpy as np
 from avgs.data.synth.materials import material_info
 
 PRESETS = ("office", "house", "apartment", "outdoor")
+"The binaural (RWAVS-like) presets."
 ENVIRONMENTS = {"office": "office", "house": "house", "apartment": "apartment", "outdoor": "outdoor"}
+RIR_ENVIRONMENTS = ("rectangular", "non-rectangular", "multi-room")
+"The kinds of room of the impulse-response task (the SoundSpaces layouts of the paper)."
+RIR_PRESETS = ("rect_small", "rect_large", "l_room", "u_room", "two_rooms", "three_rooms")
+"The impulse-response presets, two per kind of :data:`RIR_ENVIRONMENTS`."
+ALL_PRESETS = PRESETS + RIR_PRESETS
 
 
 @dataclass
@@ -330,14 +347,136 @@ def _outdoor(rng: np.random.Generator, seed: int) -> SceneSpec:
     )
 
 
-_BUILDERS = {"office": _office, "house": _house, "apartment": _apartment, "outdoor": _outdoor}
+# -- impulse-response presets (the six SoundSpaces-like layouts) ------------------------------
+
+
+def _walls_floor(footprint, walls, floor, ceiling, floor_rects):
+    floors = [Region(f"floor_{i}", floor, r) for i, r in enumerate(floor_rects)]
+    ceilings = [Region(f"ceiling_{i}", ceiling, r) for i, r in enumerate(floor_rects)]
+    return dict(footprint=footprint, wall_materials=walls, floors=floors, ceilings=ceilings)
+
+
+def _rect_small(rng: np.random.Generator, seed: int) -> SceneSpec:
+    """A small absorbent room: carpet, a curtained wall, acoustic ceiling tiles."""
+    w, d, h = _r(rng.uniform(4.2, 4.8)), _r(rng.uniform(3.4, 3.8)), _r(rng.uniform(2.5, 2.7))
+    return SceneSpec(
+        preset="rect_small",
+        environment="rectangular",
+        seed=seed,
+        height=h,
+        source=[_r(w / 3), _r(d / 2), 1.5],
+        **_walls_floor(_rect(0, 0, w, d), ["plasterboard", "curtains_velvet", "plasterboard", "wooden_lining"],
+                       "carpet_hairy", "ceiling_fissured_tile", [_rect(0, 0, w, d)]),
+    )
+
+
+def _rect_large(rng: np.random.Generator, seed: int) -> SceneSpec:
+    """A large hall: brick, a window, wood lining and plasterboard, a wooden floor, acoustic ceiling tiles."""
+    w, d, h = _r(rng.uniform(8.5, 9.5)), _r(rng.uniform(6.0, 6.8)), _r(rng.uniform(3.0, 3.3))
+    return SceneSpec(
+        preset="rect_large",
+        environment="rectangular",
+        seed=seed,
+        height=h,
+        source=[_r(w / 3), _r(d / 2), 1.5],
+        **_walls_floor(_rect(0, 0, w, d), ["brickwork", "glass_window", "curtains_velvet", "plasterboard"],
+                       "wood_16mm", "ceiling_fissured_tile", [_rect(0, 0, w, d)]),
+    )
+
+
+def _l_room(rng: np.random.Generator, seed: int) -> SceneSpec:
+    """An L: a wide arm [0, w] x [0, a] and a tall arm [0, b] x [a, d]."""
+    w, d, h = _r(rng.uniform(6.6, 7.4)), _r(rng.uniform(5.6, 6.4)), _r(rng.uniform(2.6, 2.8))
+    a, b = _r(rng.uniform(2.8, 3.2)), _r(rng.uniform(3.0, 3.6))
+    footprint = [[0, 0], [w, 0], [w, a], [b, a], [b, d], [0, d]]
+    walls = ["plasterboard", "glass_window", "plasterboard", "wooden_lining", "plasterboard", "brickwork"]
+    return SceneSpec(
+        preset="l_room",
+        environment="non-rectangular",
+        seed=seed,
+        height=h,
+        source=[_r(b / 2), _r(a / 2), 1.5],
+        **_walls_floor(footprint, walls, "wood_16mm", "ceiling_fissured_tile", [_rect(0, 0, w, a), _rect(0, a, b, d)]),
+    )
+
+
+def _u_room(rng: np.random.Generator, seed: int) -> SceneSpec:
+    """A U: a base [0, w] x [0, a] and two arms [0, c] x [a, d] and [w - c, w] x [a, d]."""
+    w, d, h = _r(rng.uniform(7.6, 8.4)), _r(rng.uniform(5.6, 6.4)), _r(rng.uniform(2.7, 2.9))
+    a, c = _r(rng.uniform(2.8, 3.2)), _r(rng.uniform(2.4, 2.7))
+    footprint = [[0, 0], [w, 0], [w, d], [w - c, d], [w - c, a], [c, a], [c, d], [0, d]]
+    walls = ["brickwork", "plasterboard", "glass_window", "plasterboard", "glass_window", "plasterboard", "glass_window", "plasterboard"]
+    rects = [_rect(0, 0, w, a), _rect(0, a, c, d), _rect(w - c, a, w, d)]
+    return SceneSpec(
+        preset="u_room",
+        environment="non-rectangular",
+        seed=seed,
+        height=h,
+        source=[_r(w / 2), _r(a / 2), 1.5],
+        **_walls_floor(footprint, walls, "carpet_cotton", "ceiling_fissured_tile", rects),
+    )
+
+
+def _rooms_in_a_row(preset: str, widths, d: float, h: float, rng, seed: int, walls, floor, ceiling) -> SceneSpec:
+    """Rooms [x_k, x_k + widths[k]] x [0, d] side by side; the partition after room k (a box
+    ``t`` thick, on the next room's side) has a door opening ``door_w`` wide, ``door_h`` high."""
+    t, door_w, door_h = 0.12, 0.9, 2.1
+    xs = np.concatenate([[0.0], np.cumsum(widths)])
+    boxes = []
+    for k, x in enumerate(xs[1:-1]):
+        y = _r(rng.uniform(0.6, d - door_w - 0.6))
+        x0, x1 = _r(x), _r(x + t)
+        boxes += [
+            Box(f"partition_{k}a", "plasterboard", [x0, 0.0, 0.0], [x1, y, h], "partition"),
+            Box(f"partition_{k}b", "plasterboard", [x0, _r(y + door_w), 0.0], [x1, d, h], "partition"),
+            Box(f"lintel_{k}", "plasterboard", [x0, y, door_h], [x1, _r(y + door_w), h], "partition"),
+        ]
+    total = _r(xs[-1])
+    rects = [_rect(_r(a), 0, _r(b), d) for a, b in zip(xs[:-1], xs[1:])]
+    return SceneSpec(
+        preset=preset,
+        environment="multi-room",
+        seed=seed,
+        height=h,
+        source=[_r(widths[0] / 2), _r(d / 2), 1.5],
+        boxes=boxes,
+        **_walls_floor(_rect(0, 0, total, d), walls, floor, ceiling, rects),
+    )
+
+
+def _two_rooms(rng: np.random.Generator, seed: int) -> SceneSpec:
+    widths = [_r(rng.uniform(4.2, 4.8)), _r(rng.uniform(3.6, 4.2))]
+    d, h = _r(rng.uniform(4.2, 4.8)), _r(rng.uniform(2.5, 2.7))
+    walls = ["plasterboard", "brickwork", "glass_window", "wooden_lining"]
+    return _rooms_in_a_row("two_rooms", widths, d, h, rng, seed, walls, "carpet_cotton", "ceiling_plasterboard")
+
+
+def _three_rooms(rng: np.random.Generator, seed: int) -> SceneSpec:
+    widths = [_r(rng.uniform(3.6, 4.0)), _r(rng.uniform(3.0, 3.4)), _r(rng.uniform(3.6, 4.0))]
+    d, h = _r(rng.uniform(3.8, 4.2)), _r(rng.uniform(2.6, 2.8))
+    walls = ["brickwork", "plasterboard", "glass_window", "plasterboard"]
+    return _rooms_in_a_row("three_rooms", widths, d, h, rng, seed, walls, "carpet_cotton", "ceiling_plasterboard")
+
+
+_BUILDERS = {
+    "office": _office,
+    "house": _house,
+    "apartment": _apartment,
+    "outdoor": _outdoor,
+    "rect_small": _rect_small,
+    "rect_large": _rect_large,
+    "l_room": _l_room,
+    "u_room": _u_room,
+    "two_rooms": _two_rooms,
+    "three_rooms": _three_rooms,
+}
 
 
 def make_spec(preset: str, seed: int) -> SceneSpec:
     """The spec of preset ``preset`` drawn with ``seed`` (same seed, same spec)."""
     if preset not in _BUILDERS:
-        raise ValueError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
-    rng = np.random.default_rng([int(seed), PRESETS.index(preset), 0])
+        raise ValueError(f"unknown preset {preset!r}; expected one of {', '.join(ALL_PRESETS)}")
+    rng = np.random.default_rng([int(seed), ALL_PRESETS.index(preset), 0])
     spec = _BUILDERS[preset](rng, int(seed))
     spec.validate()
     return spec

@@ -183,6 +183,16 @@ def binaural_rirs(spec: SceneSpec, listener: np.ndarray, yaw_deg: float, setting
     room.add_microphone_array(
         pra.MicrophoneArray(mics, settings.sample_rate, directivity=[_turned(left, yaw_deg), _turned(right, yaw_deg)])
     )
+    _enable_ray_tracing(room, settings)
+    room.compute_rir()
+    ears = [np.asarray(room.rir[m][0], dtype=np.float64) for m in (0, 1)]
+    out = np.zeros((2, max(len(e) for e in ears)), dtype=np.float32)
+    for m, e in enumerate(ears):
+        out[m, : len(e)] = e
+    return out
+
+
+def _enable_ray_tracing(room, settings: SimSettings) -> None:
     if settings.ray_tracing:
         k1 = room.get_volume() / (math.pi * settings.receiver_radius**2 * room.c * settings.hist_bin_size)
         n_rays = int(min(settings.max_rays, max(500, 20 * k1)))  # pyroomacoustics' own rule, capped
@@ -192,11 +202,68 @@ def binaural_rirs(spec: SceneSpec, listener: np.ndarray, yaw_deg: float, setting
             time_thres=settings.time_thres,
             hist_bin_size=settings.hist_bin_size,
         )
+
+
+def emission_delay(settings: SimSettings) -> int:
+    """Samples between emission and time 0 of a :func:`binaural_rirs` response's frame: half
+    pyroomacoustics' fractional-delay filter (``frac_delay_length // 2``) plus the KEMAR
+    head's own delay (the peak of its frontal response, both ears summed). A response
+    shifted left by this many samples has the direct sound of a source straight ahead at
+    ``distance / c`` (the ears of a lateral source lead or lag by the interaural delay)."""
+    from pyroomacoustics.parameters import constants
+
+    from avgs.data.synth.hrtf import frontal_delay
+
+    return int(constants.get("frac_delay_length")) // 2 + frontal_delay(settings.sample_rate, settings.hrtf_equalised)
+
+
+def speed_of_sound() -> float:
+    """pyroomacoustics' speed of sound in m/s (what its rooms use)."""
+    from pyroomacoustics.parameters import constants
+
+    return float(constants.get("c"))
+
+
+def receiver_rirs(spec: SceneSpec, sources, listener, yaws_deg, settings: SimSettings) -> np.ndarray:
+    """Binaural responses ``[S, O, 2, n]`` float32 (channel 0 = left ear) from every source
+    ``sources [S, 3]`` to a KEMAR head at ``listener [3]`` facing each of ``yaws_deg [O]``,
+    world metres: one room holding all sources and the O x 2 ears as microphones.
+
+    Same time frame and scale as :func:`binaural_rirs` (each response starts
+    :func:`emission_delay` samples before emission; no normalisation); with image sources
+    only (no ray tracing) each response equals ``binaural_rirs`` of that source and yaw. A
+    pure function of its arguments: the simulator's random generator is seeded from the
+    listener (not the yaws or the sources), so the result does not depend on the process
+    or the order of calls."""
+    import pyroomacoustics as pra
+
+    listener = np.asarray(listener, dtype=np.float64).reshape(3)
+    sources = np.asarray(sources, dtype=np.float64).reshape(-1, 3)
+    yaws = [float(y) for y in yaws_deg]
+    if not (np.all(np.isfinite(listener)) and np.all(np.isfinite(sources)) and all(math.isfinite(y) for y in yaws)):
+        raise ValueError("listener, sources and yaws must be finite")
+    if not len(sources) or not yaws:
+        raise ValueError(f"need at least one source and one yaw, got {len(sources)} and {len(yaws)}")
+    pra.random.seed(_pose_seed(spec, listener, 0.0, settings))
+    room = build_room(spec, settings)
+    if not room.is_inside(listener):
+        raise ValueError(f"{spec.preset}: listener {listener.tolist()} is outside the room (or inside furniture)")
+    for s in sources:
+        if not room.is_inside(s):
+            raise ValueError(f"{spec.preset}: source {s.tolist()} is outside the room (or inside furniture)")
+        room.add_source(s)
+    left, right = ear_directivities(settings.sample_rate, settings.hrtf_equalised)
+    directivity = [_turned(ear, y) for y in yaws for ear in (left, right)]  # mic 2 o + e: yaw o, ear e
+    mics = np.repeat(listener[:, None], len(directivity), axis=1)  # [3, 2 O] every ear at the head centre
+    room.add_microphone_array(pra.MicrophoneArray(mics, settings.sample_rate, directivity=directivity))
+    _enable_ray_tracing(room, settings)
     room.compute_rir()
-    ears = [np.asarray(room.rir[m][0], dtype=np.float64) for m in (0, 1)]
-    out = np.zeros((2, max(len(e) for e in ears)), dtype=np.float32)
-    for m, e in enumerate(ears):
-        out[m, : len(e)] = e
+    n = max(len(room.rir[m][s]) for m in range(len(directivity)) for s in range(len(sources)))
+    out = np.zeros((len(sources), len(yaws), 2, n), dtype=np.float32)
+    for m in range(len(directivity)):
+        for s in range(len(sources)):
+            h = np.asarray(room.rir[m][s])
+            out[s, m // 2, m % 2, : len(h)] = h
     return out
 
 

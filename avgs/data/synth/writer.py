@@ -39,7 +39,7 @@ from avgs.atomic import write_text
 from avgs.data.synth import GENERATOR_VERSION
 from avgs.data.synth.materials import material_record
 from avgs.data.synth.poses import Pose, sample_poses
-from avgs.data.synth.presets import PRESETS, SceneSpec, make_spec
+from avgs.data.synth.presets import ALL_PRESETS, SceneSpec, make_spec
 from avgs.data.synth.simulate import SimSettings, binaural_rirs, ear_directivities, rt60_summary
 
 BINAURAL_FILE = "binaural_syn_re.wav"
@@ -54,7 +54,7 @@ class SynthConfig:
     """What ``avgs synth`` makes: one scene of a preset."""
 
     preset: str = "office"
-    "Scene preset: office, house, apartment or outdoor."
+    "Scene preset: office, house, apartment or outdoor (or an impulse-response preset's room)."
     poses: int = 100
     "Listener poses (= frames = seconds of audio), train and val together."
     seed: int = 0
@@ -121,30 +121,40 @@ def _simulate_pose(i: int) -> tuple[int, np.ndarray, float]:
     return i, rir, time.perf_counter() - t0
 
 
-def simulate_poses(spec: SceneSpec, poses: list[Pose], settings: SimSettings, workers: int = 2, progress: bool = True):
-    """Binaural RIRs of every pose, in pose order, and each pose's compute time in seconds."""
+def run_jobs(job, n: int, init, initargs: tuple, workers: int = 2, progress: bool = True, desc: str = "", unit: str = "job"):
+    """Yield ``job(i)`` for ``i < n`` (in any order) from ``workers`` processes, each set up
+    once by ``init(*initargs)`` (forked where the platform can, so that what the parent
+    built, e.g. the KEMAR head, is inherited), with a progress bar. ``job`` and ``init``
+    must be module-level functions; the results must not depend on the worker count."""
     from tqdm.auto import tqdm
 
-    rirs: list = [None] * len(poses)
-    times = [0.0] * len(poses)
-    bar = tqdm(total=len(poses), desc=f"simulating {spec.preset}", unit="pose", disable=not progress)
-    ear_directivities(settings.sample_rate, settings.hrtf_equalised)  # before forking, so that workers inherit the head
-    workers = max(1, min(int(workers), len(poses)))
+    bar = tqdm(total=n, desc=desc, unit=unit, disable=not progress)
+    workers = max(1, min(int(workers), n))
     if workers == 1:
-        _init_worker(spec, poses, settings)
-        results = map(_simulate_pose, range(len(poses)))
+        init(*initargs)
+        results = map(job, range(n))
         pool = contextlib.nullcontext()
     else:
         method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-        pool = mp.get_context(method).Pool(workers, initializer=_init_worker, initargs=(spec, poses, settings))
-        results = pool.imap_unordered(_simulate_pose, range(len(poses)))
+        pool = mp.get_context(method).Pool(workers, initializer=init, initargs=initargs)
+        results = pool.imap_unordered(job, range(n))
     try:
         with pool:
-            for i, rir, seconds in results:
-                rirs[i], times[i] = rir, seconds
+            for result in results:
+                yield result
                 bar.update(1)
     finally:
         bar.close()
+
+
+def simulate_poses(spec: SceneSpec, poses: list[Pose], settings: SimSettings, workers: int = 2, progress: bool = True):
+    """Binaural RIRs of every pose, in pose order, and each pose's compute time in seconds."""
+    rirs: list = [None] * len(poses)
+    times = [0.0] * len(poses)
+    ear_directivities(settings.sample_rate, settings.hrtf_equalised)  # before forking, so that workers inherit the head
+    jobs = run_jobs(_simulate_pose, len(poses), _init_worker, (spec, poses, settings), workers, progress, f"simulating {spec.preset}", "pose")
+    for i, rir, seconds in jobs:
+        rirs[i], times[i] = rir, seconds
     return rirs, times
 
 
@@ -266,8 +276,22 @@ def check_scene_id(scene_id: str) -> None:
         raise ValueError(f"scene id {scene_id!r}: use letters, digits, '_', '-' or '.', starting with a letter or digit")
 
 
-def write_scene(out_root, scene_id: str, cfg: SynthConfig, *, overwrite: bool = False, progress: bool = True) -> SynthResult:
-    """Generate one scene of ``cfg.preset`` into ``out_root/scene_id`` (see the module docstring)."""
+def write_scene(
+    out_root,
+    scene_id: str,
+    cfg: SynthConfig,
+    *,
+    overwrite: bool = False,
+    progress: bool = True,
+    spec: SceneSpec | None = None,
+    extend=None,
+) -> SynthResult:
+    """Generate one scene of ``cfg.preset`` into ``out_root/scene_id`` (see the module docstring).
+
+    ``spec``: the scene to write instead of ``make_spec(cfg.preset, cfg.seed)`` (same preset).
+    ``extend(folder, spec, frame, metadata)``: called once everything but scene.json is in the
+    temporary scene folder; it may add files there and entries to ``metadata`` (scene.json's
+    dict), and they are renamed into place with the rest (``avgs synth --task rir``)."""
     from scipy.io import wavfile
 
     from avgs.data.frame import SceneFrame
@@ -276,8 +300,10 @@ def write_scene(out_root, scene_id: str, cfg: SynthConfig, *, overwrite: bool = 
 
     t_start = time.perf_counter()
     check_scene_id(scene_id)
-    if cfg.preset not in PRESETS:
-        raise ValueError(f"unknown preset {cfg.preset!r}; expected one of {', '.join(PRESETS)}")
+    if cfg.preset not in ALL_PRESETS:
+        raise ValueError(f"unknown preset {cfg.preset!r}; expected one of {', '.join(ALL_PRESETS)}")
+    if spec is not None and spec.preset != cfg.preset:
+        raise ValueError(f"the spec given is of preset {spec.preset!r}, the config's is {cfg.preset!r}")
     n_train, n_val = cfg.split_sizes()
     out_root = Path(out_root)
     target = out_root / scene_id
@@ -286,7 +312,7 @@ def write_scene(out_root, scene_id: str, cfg: SynthConfig, *, overwrite: bool = 
     out_root.mkdir(parents=True, exist_ok=True)
     sr = cfg.sim.sample_rate
 
-    spec = make_spec(cfg.preset, cfg.seed)
+    spec = make_spec(cfg.preset, cfg.seed) if spec is None else spec
     pose_rng = np.random.default_rng([cfg.seed, 1])
     train = sample_poses(spec, n_train, pose_rng)
     val = sample_poses(spec, n_val, pose_rng, avoid=train)
@@ -341,7 +367,10 @@ def write_scene(out_root, scene_id: str, cfg: SynthConfig, *, overwrite: bool = 
                 "frames": [{"file_path": f"frames/{i + 1:05d}.png", "transform_matrix": m.tolist()} for i, m in enumerate(c2w)],
             },
         )
-        _write_json(tmp / "scene.json", _scene_json(spec, cfg, settings, frame, n_train, n_val, rt60, poses))
+        metadata = _scene_json(spec, cfg, settings, frame, n_train, n_val, rt60, poses)
+        if extend is not None:
+            extend(tmp, spec, frame, metadata)
+        _write_json(tmp / "scene.json", metadata)
 
         if target.exists():  # overwrite: swap, then delete the old one
             old = out_root / f".{scene_id}.old-{os.getpid()}"

@@ -1,0 +1,145 @@
+"""B for the impulse-response task: the RIR variant of the binauralizer (paper appendix).
+
+The paper drops the mixture mask and lets B's second MLP "predict the impulse response
+directly for a corresponding time input". We take the time input to be one STFT frame of
+the response and let the second MLP predict, for that frame, both ears' log magnitudes over
+all F frequency bins (the time-frequency form). Per pose (listener, yaw, source)::
+
+    e   = cos(n theta), sin(n theta), cos(n yaw), sin(n yaw),  n = 1 .. K   direction and facing
+    d   = |source - listener|                                                distance (normalised)
+    q   = ReLU(W_p [PE(listener) (+) PE(source) (+) e (+) log d] + b)        pose query
+    q  += Linear(C)                                                          C = C_S (+) C_L (if used)
+    h   = MLP_1(q) + q                                                       4 x (Linear + ReLU), residual
+    per frame t (time input, mapped onto [-0.99, 0.99]; t_s its time in seconds, T the response's length):
+    g0  = ReLU(h + W_t PE(t) + b_t + W_a PE((t_s - d / c) / T))              W_a: the arrival feature
+    g   = MLP_2(g0, e) + g0                                                  4 x (Linear + ReLU); e enters every layer
+    Y   = mean + Linear(g)          [2, F] log magnitudes of frame t, both ears
+
+``mean`` [2, F, N] is the training responses' mean log magnitude (a buffer stored with the
+weights) and the head starts at zero, so an untrained network predicts the mean response
+and training learns what each pose adds to it. There is no per-response normalisation: the
+level of each response is part of its log magnitude, so the fall of level with distance is
+learned, not removed. ``log_floor`` is the log of the smallest magnitude the targets hold
+(``RIRConfig.floor_db`` below their loudest bin); a prediction at or below it is silence.
+
+Why time-frequency and not one sample per time input: a response of L ~ 10^4 samples per
+ear would be 10^4 rows through the MLP per pose (N ~ 10^2 frames here); and a log magnitude
+is a smooth target (a sample of a response is not: its phase is all but random after the
+first reflections). T60, C50 and EDT, the task's metrics, depend on the energy envelope,
+which the log magnitudes carry. What it costs: a waveform needs a phase
+(:func:`avgs.acoustics.rir_model.response_waveform`).
+
+Continuous yaw: the facing enters only through cos / sin of theta and yaw, so any yaw is a
+valid input, yaw + 360 gives the same features, and a small change of yaw gives a small
+change of the output (a smooth network of smooth features). The data has four facings; in
+between, the network interpolates (tests/test_rir_model.py checks both properties).
+
+``log d`` is a function of the positions the paper's B already takes, given explicitly (the
+level falls with it). The optional arrival feature (``RIRConfig.arrival_frequencies``, off by
+default): each frame's time relative to the direct sound's arrival ``d / c``
+(``RIRConfig.sound_speed``, normalised units per second, set from the scene's frame at
+training). Measured on data/rir/rect_small (500 iterations): with it (6 frequencies) val
+T60 24.8 %, C50 1.24 dB, EDT 0.042 s, level against distance within 2.6 dB; without it
+24.2 %, 1.20 dB, 0.041 s, within 2.1 dB. No gain, so the paper's inputs are the default.
+
+What made the task learnable at all, measured on rect_small: the targets' floor
+(``RIRConfig.floor_db``). With a -100 dB floor the network memorised the training pairs
+(train RMSE 0.45 nats, val 1.11 against the mean response's 0.79, on an earlier 6 x 15 grid);
+at -80 dB it beats the mean on val and held-out sources. The 9-bin smoothing
+(``smooth_bins``) is kept because a diffuse tail's per-bin fine structure is random; its
+effect at -80 dB was not measured separately.
+
+Inference caches ``W_t PE(t) + b_t`` for all frames (:meth:`RIRBinauralizer.time_features`).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from avgs.acoustics.encodings import encoded_dim, positional_encoding
+from avgs.config import RIRConfig
+
+MLP_LAYERS = 4
+"Linear + ReLU layers of each of the two MLPs (as B's)."
+
+
+def orientation_feature(theta: torch.Tensor, yaw: torch.Tensor, harmonics: int) -> torch.Tensor:
+    """theta, yaw [B] radians -> [B, 4 K]: cos(n theta), sin(n theta), cos(n yaw), sin(n yaw), n = 1 .. K."""
+    n = torch.arange(1, harmonics + 1, device=theta.device, dtype=theta.dtype)  # [K]
+    t, y = theta[:, None] * n, yaw[:, None] * n  # [B, K]
+    return torch.cat([torch.cos(t), torch.sin(t), torch.cos(y), torch.sin(y)], dim=-1)
+
+
+class RIRBinauralizer(nn.Module):
+    """Log magnitudes ``[B, 2, F, N]`` of binaural responses from listener, source, facing and context."""
+
+    reverb = None
+    "No reverberant tail: the response holds the whole decay (what code written for B reads)."
+    post_conv = None
+    "No conv head."
+
+    def __init__(self, cfg: RIRConfig, context_dim: int | None, n_freq: int, n_frames: int, hop_seconds: float):
+        super().__init__()
+        if n_frames < 1:
+            raise ValueError(f"the RIR network needs the responses' number of STFT frames (>= 1), got {n_frames}")
+        W = cfg.width
+        self.cfg = cfg
+        self.n_freq, self.n_frames, self.width = n_freq, n_frames, W
+        self.register_buffer("mean", torch.zeros(2, n_freq, n_frames))  # [2, F, N] training mean log magnitude
+        self.register_buffer("log_floor", torch.tensor(-30.0))  # log of the smallest target magnitude
+        self.register_buffer("time_query", torch.linspace(-0.99, 0.99, n_frames)[:, None], persistent=False)  # [N, 1]
+        self.register_buffer("frame_seconds", torch.arange(n_frames) * float(hop_seconds), persistent=False)  # [N]
+        self.duration = max(n_frames * float(hop_seconds), 1e-9)  # T, seconds
+        self.position_dim = encoded_dim(3, cfg.position_frequencies)
+        self.direction_dim = 4 * cfg.direction_harmonics
+        self.pose_proj = nn.Linear(2 * self.position_dim + self.direction_dim + 1, W)
+        self.context_proj = nn.Linear(context_dim, W) if context_dim else None
+        self.pose_mlp = nn.ModuleList(nn.Linear(W, W) for _ in range(MLP_LAYERS))
+        self.time_proj = nn.Linear(encoded_dim(1, cfg.time_frequencies), W)
+        self.arrival_proj = nn.Linear(encoded_dim(1, cfg.arrival_frequencies), W, bias=False) if cfg.arrival_frequencies else None
+        self.time_mlp = nn.ModuleList(nn.Linear(W + self.direction_dim, W) for _ in range(MLP_LAYERS))
+        self.head = nn.Linear(W, 2 * n_freq)
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+
+    def time_features(self) -> torch.Tensor:
+        """``W_t PE(t) + b_t`` for every frame ``[N, W]``: cacheable."""
+        return self.time_proj(positional_encoding(self.time_query, self.cfg.time_frequencies))
+
+    def forward(
+        self, listener: torch.Tensor, source: torch.Tensor, theta: torch.Tensor, yaw: torch.Tensor,
+        context: torch.Tensor | None = None, time_features: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """listener, source [B, 3] normalised; theta, yaw [B] radians; context [B, C] or None;
+        ``time_features``: :meth:`time_features`, cached at inference. Returns log magnitudes [B, 2, F, N]."""
+        c = self.cfg
+        B, W, N, F = listener.shape[0], self.width, self.n_frames, self.n_freq
+        e = orientation_feature(theta, yaw, c.direction_harmonics)  # [B, D]
+        distance = torch.linalg.vector_norm(source - listener, dim=-1)  # [B]
+        pose = torch.cat([positional_encoding(listener, c.position_frequencies),
+                          positional_encoding(source, c.position_frequencies), e,
+                          torch.log(distance.clamp_min(1e-3))[:, None]], dim=-1)  # [B, P]
+        q = self.pose_proj(pose).relu()  # [B, W]
+        if self.context_proj is not None:
+            if context is None:
+                raise ValueError("this RIR network was built with scene context; pass context [B, C]")
+            q = q + self.context_proj(context)
+        h = q
+        for layer in self.pose_mlp:
+            h = layer(h).relu()
+        h = h + q  # [B, W] residual
+        t = self.time_features() if time_features is None else time_features  # [N, W]
+        g0 = h[:, None, :] + t[None]  # [B, N, W]
+        if self.arrival_proj is not None:
+            speed = c.sound_speed if c.sound_speed > 0 else 1.0
+            rel = (self.frame_seconds[None] - distance[:, None] / speed) / self.duration  # [B, N]
+            g0 = g0 + self.arrival_proj(positional_encoding(rel[..., None], c.arrival_frequencies))
+        g0 = g0.relu()
+        g = g0
+        for layer in self.time_mlp:  # W_g g + (W_e e + b): the direction's part is one vector per pose
+            ge = torch.addmm(layer.bias, e, layer.weight[:, W:].t())  # [B, W]
+            g = (g @ layer.weight[:, :W].t()).add_(ge[:, None, :]).relu_()  # [B, N, W]
+        g = g + g0
+        out = self.head(g).view(B, N, 2, F).permute(0, 2, 3, 1)  # [B, 2, F, N]
+        return out + self.mean
