@@ -27,6 +27,17 @@ def quick_scene(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def quick_rir_scene(tmp_path_factory) -> Path:
+    """Path of a quick impulse-response scene, ``avgs synth --task rir --quick`` (DATA_ROOT/quick_rect); read only."""
+    from avgs.cli import main
+
+    root = tmp_path_factory.mktemp("rir_quick")
+    argv = ["synth", str(root), "--task", "rir", "--quick", "--scene-id", "quick_rect", "--workers", "1", "--no-progress"]
+    assert main(argv) == 0
+    return root / "quick_rect"
+
+
+@pytest.fixture(scope="session")
 def quick_presets(tmp_path_factory) -> dict[str, Path]:
     """{preset: scene folder} of quick scenes of every preset in one data root."""
     from avgs.data.synth.presets import PRESETS

@@ -210,11 +210,9 @@ def test_metrics_of_exponential_decays_recover_their_t60():
 
 
 @pytest.fixture(scope="module")
-def quick_root(tmp_path_factory):
-    root = tmp_path_factory.mktemp("rir")
-    argv = ["synth", str(root), "--task", "rir", "--quick", "--scene-id", "quick_rect", "--workers", "1", "--no-progress"]
-    assert main(argv) == 0
-    return root
+def quick_root(quick_rir_scene):
+    """The data root of the shared quick impulse-response scene (read only)."""
+    return quick_rir_scene.parent
 
 
 def test_the_report_has_the_binaural_tasks_shape(quick_root, tmp_path):

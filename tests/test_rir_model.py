@@ -29,24 +29,10 @@ ITERATIONS = 200
 "Iterations of the fixture's quick training (a few seconds at the quick width)."
 
 
-def _synth_rir(root: Path) -> Path:
-    try:
-        import avgs.data.rir  # noqa: F401
-    except ImportError:
-        pytest.skip("avgs.data.rir (the RIR loader, the data side of the task) is not there yet")
-    try:
-        code = cli_main(["synth", str(root), "--task", "rir", "--quick", "--scene-id", "rir_q", "--workers", "1",
-                         "--no-progress"])
-    except SystemExit as exc:  # argparse: an unknown --task
-        pytest.skip(f"'avgs synth --task rir --quick' is not available yet (exit {exc.code})")
-    assert code == 0
-    return root / "rir_q"
-
-
 @pytest.fixture(scope="module")
-def rir_scene(tmp_path_factory):
-    """A quick RIR scene (``avgs synth --task rir --quick``)."""
-    return _synth_rir(tmp_path_factory.mktemp("rir_synth"))
+def rir_scene(quick_rir_scene):
+    """A quick RIR scene (``avgs synth --task rir --quick``; shared, read only)."""
+    return quick_rir_scene
 
 
 @pytest.fixture(scope="module")

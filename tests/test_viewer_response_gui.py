@@ -48,25 +48,16 @@ def one_source_ckpt(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def rir_ckpt(tmp_path_factory):
-    """A source-aware checkpoint: ``avgs synth --task rir --quick`` (3 sources), 20 iterations of its training."""
-    try:
-        from avgs.train.rir import rir_quick_config, train_rir
-    except ImportError:
-        pytest.skip("the impulse-response task's training (avgs.train.rir) is not there")
+def rir_ckpt(quick_rir_scene, tmp_path_factory):
+    """A source-aware checkpoint: the quick impulse-response scene (3 sources), 20 iterations of its training."""
+    from avgs.train.rir import rir_quick_config, train_rir
+
     torch.set_num_threads(1)
-    root = tmp_path_factory.mktemp("rir_scene")
-    try:
-        code = cli_main(["synth", str(root), "--task", "rir", "--quick", "--scene-id", "rir_q", "--workers", "1",
-                         "--no-progress"])
-    except SystemExit as exc:  # argparse: no --task
-        pytest.skip(f"'avgs synth --task rir' is not available (exit {exc.code})")
-    assert code == 0
     cfg = rir_quick_config()
     cfg.acoustic.iterations = 20
     cfg.eval_every = cfg.checkpoint_every = cfg.log_every = 20
-    out = root / "rir.ckpt"
-    train_rir(root / "rir_q", out, cfg, progress=False)
+    out = tmp_path_factory.mktemp("rir_ckpt") / "rir.ckpt"
+    train_rir(quick_rir_scene, out, cfg, progress=False)
     return out
 
 

@@ -38,6 +38,7 @@ def summary(path) -> dict:
         "sample_rate": int(stft.sample_rate),
         "stft": {"n_fft": stft.n_fft, "hop_length": stft.hop_length, "win_length": stft.win_length},
         "iteration": int(state.get("iteration", 0)),
+        "task": str(ckpt.get("task", "binaural")),
         "training": {
             "stage1_iterations": cfg.gaussians.iterations,
             "iterations": cfg.acoustic.iterations,
@@ -86,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     src = ", ".join(f"{v:.3f}" for v in info["source_position"])
     lo, hi = (", ".join(f"{v:.2f}" for v in row) for row in info["bounds"])
-    print(f"{info['path']}: AV-GS checkpoint, format {info['format_version']}, scene {info['scene']!r}")
+    print(f"{info['path']}: AV-GS checkpoint, format {info['format_version']}, scene {info['scene']!r}, task {info['task']}"
+          + (" (impulse responses: the source can move)" if info["task"] == "rir" else " (one source position)"))
     print(f"  audio points {info['audio_points']} (alpha {info['alpha_dim']} dims), gaussians {info['gaussians']}, outline segments {info['outline_segments']}")
     print(f"  source ({src}) world; bounds ({lo}) .. ({hi})")
     print(f"  {info['sample_rate']} Hz, n_fft {info['stft']['n_fft']}, hop {info['stft']['hop_length']}")

@@ -36,6 +36,8 @@ def _help(name: str) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from avgs.sweep.spec import EVAL_SPLITS
+
     parser.epilog = EPILOG
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("--config", metavar="SWEEP.toml", help="Read the sweep from this TOML file (flags override it).")
@@ -53,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads-per-run", type=int, metavar="N", help=_help("threads_per_run") + " (default: 1)")
     parser.add_argument("--gpus-per-run", type=float, metavar="X", help=_help("gpus_per_run") + " (default: 0)")
     parser.add_argument("--retries", type=int, metavar="N", help=_help("retries") + " (default: 1)")
-    parser.add_argument("--eval-split", choices=("val", "train", "none"), help=_help("eval_split") + " (default: val)")
+    parser.add_argument("--eval-split", choices=EVAL_SPLITS, help=_help("eval_split") + " (default: val)")
     parser.add_argument("--address", metavar="ADDR", help=_help("address"))
     parser.add_argument("--num-cpus", type=int, metavar="N", help=_help("num_cpus"))
     parser.add_argument("--dry-run", action="store_true", help="Print each run, what it needs and its command; run nothing.")

@@ -37,6 +37,8 @@ from pathlib import Path
 CHECKPOINT = "scene.ckpt"
 "A run's checkpoint, in its run folder (its log and curves beside it, as ``avgs train`` names them)."
 
+EVAL_SPLITS = ("val", "train", "heldout", "none")
+"What scores the finished checkpoints: a split of the scene (heldout: the impulse-response task's held-out source positions), or none."
 RESERVED = ("--out", "--resume", "--seed", "--stage1-only", "--threads")
 "``avgs train`` options the sweep sets itself, refused in settings (``--seed`` comes from ``seeds``)."
 
@@ -69,7 +71,7 @@ class SweepSpec:
     retries: int = 1
     """Further attempts of a failed run in the same sweep, each resuming from its last checkpoint."""
     eval_split: str = "val"
-    """Clips that score every finished checkpoint at the end (val, train, or none)."""
+    """What scores every finished checkpoint at the end: val, train, heldout (impulse-response scenes: pairs of held-out sources) or none."""
     address: str = ""
     """Ray cluster to join (auto, HOST:PORT or ray://HOST:10001); empty: start a local Ray on this machine."""
     num_cpus: int = 0
@@ -99,8 +101,8 @@ class SweepSpec:
             raise ValueError(f"GPUs per run above 1 must be whole, got {self.gpus_per_run}")
         if self.retries < 0:
             raise ValueError(f"retries must be >= 0, got {self.retries}")
-        if self.eval_split not in ("val", "train", "none"):
-            raise ValueError(f"eval split {self.eval_split!r}: expected val, train or none")
+        if self.eval_split not in EVAL_SPLITS:
+            raise ValueError(f"eval split {self.eval_split!r}: expected {', '.join(EVAL_SPLITS)}")
         if self.num_cpus < 0:
             raise ValueError(f"num_cpus must be >= 0, got {self.num_cpus}")
         if self.num_cpus and self.address:

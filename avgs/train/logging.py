@@ -66,8 +66,17 @@ def plot_curves(records: list[dict], path: str | Path) -> Path:
     axes[0].set_title("loss")
     axes[0].legend(fontsize=7)
     x, y = series("stage2", "val_mag")
-    axes[1].plot(x, y, "o-")
-    axes[1].set_title("validation MAG")
+    if x:
+        axes[1].plot(x, y, "o-")
+        axes[1].set_title("validation MAG")
+    else:  # the impulse-response task: log-magnitude error, against predicting the mean response
+        x, y = series("stage2", "val_logmag")
+        axes[1].plot(x, y, "o-", label="model")
+        xm, ym = series("stage2", "val_logmag_mean")
+        if xm:
+            axes[1].plot(xm, ym, "--", label="mean response")
+            axes[1].legend(fontsize=7)
+        axes[1].set_title("validation log-magnitude error")
     x, y = series("stage2", "points")
     axes[2].plot(x, y)
     axes[2].set_title("audio points")
