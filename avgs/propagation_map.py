@@ -263,9 +263,10 @@ def propagation_map(
     src64 = torch.tensor(source_n, dtype=torch.float64)  # [3], as SceneRenderer.pose makes it
     src = src64.to(**as_model)
     yaw_rad = math.radians(yaw)
+    rir = getattr(renderer, "task", "binaural") == "rir"  # the impulse-response task: the response's own ear gains
     with torch.inference_mode():
         cached_source = model.source_context(src, cache)
-        tail = model.binauralizer.reverb
+        tail = None if rir else model.binauralizer.reverb
         decay = None if tail is None else tail.decay().double().cpu().numpy()  # [F]
 
     ny, nx = grid.shape
@@ -284,8 +285,11 @@ def propagation_map(
             lis64 = torch.from_numpy(frame.to_normalised(np.clip(grid.positions(flat), lo, hi)))  # [n, 3] float64
             theta = signed_direction(lis64, torch.full((len(flat),), yaw_rad, dtype=torch.float64), src64)  # [n]
             with torch.inference_mode():
-                m = model.masks(lis64.to(**as_model), theta.to(**as_model), src, cached_source, cache)
-            power = ear_power(_numpy(m.mixture), _numpy(m.difference), _numpy(m.reverb), decay)  # [n, 2, F]
+                if rir:
+                    power = _response_power(renderer, lis64.to(**as_model), yaw, src, cached_source)  # [n, 2, F]
+                else:
+                    m = model.masks(lis64.to(**as_model), theta.to(**as_model), src, cached_source, cache)
+                    power = ear_power(_numpy(m.mixture), _numpy(m.difference), _numpy(m.reverb), decay)  # [n, 2, F]
             if not np.all(np.isfinite(power)):
                 raise ValueError(f"{renderer.path or 'this checkpoint'}: the model gives NaN or Inf masks on the map")
             peak = power.reshape(len(flat), -1).max(axis=-1)  # [n]
@@ -295,6 +299,18 @@ def propagation_map(
             level[iy, ix], ild[iy, ix] = lv, il
         done = min(b0 + batch, len(order))
         yield PropagationMap(grid, source_w, yaw, level.copy(), ild.copy(), done, order)
+
+
+def _response_power(renderer, listener: torch.Tensor, yaw: float, source: torch.Tensor, cached_source) -> np.ndarray:
+    """Task rir: each ear's power per bin ``[n, 2, F]`` of the predicted responses at ``listener`` [n, 3]
+    (normalised), the same gains :meth:`SceneRenderer.masks` reports for one pose."""
+    from avgs.acoustics.rir_model import ear_transfer
+
+    model = renderer.model
+    yaw_rad = torch.full((len(listener),), math.radians(yaw % 360.0), dtype=torch.float64).to(listener.device, listener.dtype)
+    log_mag = model.log_magnitudes(listener, yaw_rad, source, renderer.cache, cached_source)[0]  # [n, 2, F, N]
+    gains = ear_transfer(model.magnitudes(log_mag.float()).cpu(), renderer.stft)  # [n, 2, F]
+    return gains.double().numpy() ** 2
 
 
 def compute_map(renderer, source=None, yaw: float = 0.0, z: float | None = None, size=64, **kw) -> PropagationMap:

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # Rebuilds the bundled demo scene: assets/demo/scene.ckpt and assets/demo/clip.wav.
 #
-# The exact sequence that made the committed files. Stage 1 (3D-GS) ran on a GPU with
-# gsplat (about 2 minutes with gsplat's first-use compile; 24 s after); without CUDA the
-# same command trains on the CPU with our PyTorch rasterizer (tens of minutes) and gives
-# the same kind of G, not the same numbers. Stage 2 ran on the CPU (one thread).
+# The demo is source-aware: an impulse-response scene (`--task rir`, the two-room preset),
+# so dragging the source in the explorer is heard (its level, the wall between the rooms).
+# The exact sequence that made the committed files, on 2 CPU cores (stage 1 about 17 min
+# with one thread on a shared machine, stage 2 about 1 min); with CUDA, stage 1 uses gsplat.
 #
 #   bash scripts/make_demo.sh            # everything (uses CUDA for stage 1 when present)
 #   DEVICE=cpu bash scripts/make_demo.sh # force the CPU
@@ -13,29 +13,25 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 AVGS=.venv/bin/avgs
 DEVICE="${DEVICE:-$(.venv/bin/python -c 'import torch; print("cuda" if torch.cuda.is_available() else "cpu")')}"
-SCENE=data/demo/demo_house
-WORK=runs/demo
+SCENE=data/rir/two_rooms
+WORK=runs/demo_rir
 mkdir -p "$WORK"
 
-# 1. The scene: a two-room house with a door, 200 train + 50 val poses (about 6 min on 2 cores).
-[ -d "$SCENE" ] || $AVGS synth data/demo --preset house --scene-id demo_house --poses 250 --seed 7
+# 1. The scene: two rooms and a door; 6 sources (1 held out) x 28 receivers x 4 facings of
+#    binaural impulse responses, plus 100 key frames (about 9 min on 2 cores).
+[ -d "$SCENE" ] || $AVGS synth data/rir --task rir --preset two_rooms --scene-id two_rooms --seed 0
 
-# 2. Stage 1: G on the key frames (3k iterations, at most 50k Gaussians). The committed demo's
-#    stage 2 was retrained (new binauralizer inputs) on the G of the demo before it, which this
-#    step had made with gsplat: runs/demo/scene.ckpt.stage1.pt was written from that checkpoint's
-#    Gaussians with avgs.train.stage1.save_stage1 (same G, same key, so step 3 reuses it).
+# 2. Stage 1: G on the key frames (3k iterations; on the CPU at most 128x96 pixels, 20k Gaussians).
 [ -f "$WORK/scene.ckpt.stage1.pt" ] || \
-  $AVGS train "$SCENE" --out "$WORK/scene.ckpt" --stage1-only --device "$DEVICE" --max-gaussians 50000
+  OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --out "$WORK/scene.ckpt" --stage1-only --device "$DEVICE"
 
-# 3. Stage 2: G_a (from 20k of G's points), F and B, 4000 iterations on the CPU (validation MAG stops
-#    improving after 1000-2000 iterations on these scenes). The committed demo predates the
-#    direction feature at every layer of B's difference MLP, hence --no-direction-every-layer; on
-#    this equalised-head scene the two train alike (docs/results.md "Direction at every layer").
-OMP_NUM_THREADS=1 $AVGS train "$SCENE" --out "$WORK/scene.ckpt" --max-gaussians 50000 --audio-points 20000 \
-  --iterations 4000 --eval-every 1000 --no-direction-every-layer
+# 3. Stage 2 of the impulse-response task: G_a (8000 of G's points), F and the RIR variant of B.
+#    With the ears' energy loss (--rir-energy-weight 1): level and interaural difference twice as close
+#    (docs/results.md "Impulse responses").
+OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --init gs --out "$WORK/scene.ckpt" --audio-points 8000 --rir-energy-weight 1 \
+  --iterations 500 --batch-size 8 --lr 1e-3 --rir-width 256 --eval-every 250
 
-# 4. Release: keep the points some vicinity can use over the walkable area, keep G for drawing,
-#    drop the optimizer state (the file stays under 25 MB).
+# 4. Release: keep G for drawing, drop the optimizer state (the file stays under 25 MB).
 mkdir -p assets/demo
 $AVGS prune "$WORK/scene.ckpt" --out assets/demo/scene.ckpt --scene "$SCENE" --keep-gaussians
 

@@ -38,6 +38,30 @@ def quick_rir_scene(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def one_source_ckpt(tmp_path_factory) -> Path:
+    """A checkpoint of the binaural task (one source position: ``source_aware`` False): 120
+    stage-2 iterations on a free-field scene in the RWAVS layout; a few seconds."""
+    import torch
+
+    from avgs.acoustics.points import AudioPoints
+    from avgs.train.pipeline import quick_config, train_scene
+    from rwavs_writer import write_scene as write_rwavs
+
+    root = tmp_path_factory.mktemp("one_source_scene")
+    scene = write_rwavs(root, n_train=32, n_val=4, seed=1)
+    cfg = quick_config()
+    cfg.acoustic.iterations, cfg.acoustic.binauralizer_width = 120, 64
+    cfg.points.densify_every, cfg.points.prune_every = 40, 100
+    cfg.eval_every = cfg.checkpoint_every = 120
+    cfg.log_every = 60
+    g = torch.Generator().manual_seed(0)
+    points = AudioPoints(torch.rand(600, 3, generator=g) * 2 - 1, torch.randn(600, 52, generator=g))
+    out = root / "scene.ckpt"
+    train_scene(scene.scene_dir, out, cfg, progress=False, initial_points=points)
+    return out
+
+
+@pytest.fixture(scope="session")
 def quick_presets(tmp_path_factory) -> dict[str, Path]:
     """{preset: scene folder} of quick scenes of every preset in one data root."""
     from avgs.data.synth.presets import PRESETS

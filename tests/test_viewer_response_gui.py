@@ -15,36 +15,15 @@ import torch
 pytest.importorskip("pytestqt")
 from PySide6 import QtCore, QtGui, QtWidgets  # noqa: E402
 
-from avgs.acoustics.points import AudioPoints  # noqa: E402
 from avgs.cli import main as cli_main  # noqa: E402
-from avgs.train.pipeline import quick_config, train_scene  # noqa: E402
 from avgs_viewer import colors  # noqa: E402
 from avgs_viewer.response import column_edges  # noqa: E402
 from avgs_viewer.response_view import EAR_COLOURS  # noqa: E402
 from avgs_viewer.window import FIXED_SOURCE_REASON, MainWindow  # noqa: E402
-from rwavs_writer import write_scene  # noqa: E402
 
 pytestmark = pytest.mark.gui
 Key = QtCore.Qt.Key
 LEFT = QtCore.Qt.MouseButton.LeftButton
-
-
-@pytest.fixture(scope="module")
-def one_source_ckpt(tmp_path_factory):
-    """120 stage-2 iterations on a free-field scene with one source (RWAVS layout): a few seconds."""
-    torch.set_num_threads(1)
-    root = tmp_path_factory.mktemp("response_scene")
-    scene = write_scene(root, n_train=32, n_val=4, seed=1)
-    cfg = quick_config()
-    cfg.acoustic.iterations, cfg.acoustic.binauralizer_width = 120, 64
-    cfg.points.densify_every, cfg.points.prune_every = 40, 100
-    cfg.eval_every = cfg.checkpoint_every = 120
-    cfg.log_every = 60
-    g = torch.Generator().manual_seed(0)
-    points = AudioPoints(torch.rand(600, 3, generator=g) * 2 - 1, torch.randn(600, 52, generator=g))
-    out = root / "scene.ckpt"
-    train_scene(scene.scene_dir, out, cfg, progress=False, initial_points=points)
-    return out
 
 
 @pytest.fixture(scope="module")

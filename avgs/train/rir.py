@@ -91,6 +91,18 @@ def envelope_magnitude(rir, stft, smooth_bins: int = 1) -> torch.Tensor:
     return power.sqrt()
 
 
+def ear_energy(log_mag: torch.Tensor) -> torch.Tensor:
+    """Each ear's energy per frequency bin, as the log of the power summed over the frames: [..., 2, F, N] -> [..., 2, F]."""
+    return torch.logsumexp(2.0 * log_mag, dim=-1)
+
+
+def energy_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """MSE of each ear's :func:`ear_energy` plus MSE of the ears' difference in it (the interaural level difference)."""
+    e_pred, e_true = ear_energy(pred), ear_energy(target)  # [B, 2, F]
+    ild_pred, ild_true = e_pred[:, 0] - e_pred[:, 1], e_true[:, 0] - e_true[:, 1]  # [B, F]
+    return torch.nn.functional.mse_loss(e_pred, e_true) + torch.nn.functional.mse_loss(ild_pred, ild_true)
+
+
 def floored_log_magnitude(rir, log_floor: float, stft, smooth_bins: int = 1) -> torch.Tensor:
     """``log(max(envelope |STFT(rir)|, e^log_floor))``: responses [..., L] -> [..., F, N] float32."""
     return torch.log(envelope_magnitude(rir, stft, smooth_bins).clamp_min(math.exp(log_floor))).float()
@@ -139,6 +151,8 @@ class RIRTrainer(Stage2Trainer):
         b = {k: v[idx] for k, v in self._batch.items()}
         pred, lis_idx, src_idx = self.model(b["listener"], b["yaw"], b["source"])  # [B, 2, F, N]
         loss_m = torch.nn.functional.mse_loss(pred, b["log_mag"])
+        if self.cfg.rir.energy_weight > 0:
+            loss_m = loss_m + self.cfg.rir.energy_weight * energy_loss(pred, b["log_mag"])
         vicinity = torch.cat([lis_idx.reshape(-1), src_idx.reshape(-1)])
         loss_v = volume_loss(self.model.points.alpha[torch.unique(vicinity)])
         loss = total_loss(loss_m, loss_v, ac.lambda_a)
