@@ -81,4 +81,21 @@ baselines runs/sparse50/baselines.json data/sparse50 --method stereo-energy
 sweep --data data/rawhrtf --scenes $PRESETS --out runs/layers --seeds 0 1 2 --common="$COMMON $SFM" \
   --setting avgs= --setting nocontext=--no-context --setting firstlayer=--no-direction-every-layer
 
+# The impulse-response task (docs/results.md "Impulse responses"): six presets, AV-GS and the
+# control, three seeds, scored on the validation pairs and the held-out sources.
+RIR_PRESETS="rect_small rect_large l_room u_room two_rooms three_rooms"
+mkdir -p runs/rir
+for p in $RIR_PRESETS; do
+  [ -d data/rir/$p ] || $A synth data/rir --task rir --preset $p --scene-id $p --seed 0 --no-progress
+done
+[ -f runs/rir/baselines.json ] || $A eval --task rir data/rir --split both --out runs/rir/baselines.json --no-progress \
+  --methods nearest,linear,opus-nearest,opus-linear,aac-nearest,aac-linear || status=1
+for split in heldout val; do
+  sweep --data data/rir --scenes $RIR_PRESETS --out runs/rir --seeds 0 1 2 --eval-split $split \
+    --common="--quick --rir-width 256 --iterations 400" --setting avgs="--task rir" --setting no-context="--task rir --no-context"
+  cp runs/rir/results.json runs/rir/results-$split.json
+done
+.venv/bin/python scripts/rir_table.py runs/rir
+.venv/bin/python scripts/rir_level_distance.py --seed 0 || status=1
+
 exit $status

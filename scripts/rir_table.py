@@ -4,7 +4,8 @@ baseline evaluation, both made by scripts/reproduce_results.sh (or by hand):
     avgs eval --task rir data/rir --methods nearest,linear,opus-nearest,opus-linear,aac-nearest,aac-linear \
         --split both --out runs/rir/baselines.json
     avgs sweep --data data/rir --setting avgs="--task rir" --setting no-context="--task rir --no-context" \
-        --seeds 0 1 2 --common="..." --eval-split heldout --out runs/rir      (then again with --eval-split val)
+        --seeds 0 1 2 --common="..." --eval-split heldout --out runs/rir      (then again with --eval-split val;
+        after each, copy runs/rir/results.json to runs/rir/results-<split>.json)
     python scripts/rir_table.py runs/rir            # prints markdown
 
 Rows: every baseline, then each sweep setting (mean over seeds, ± the spread over seeds);

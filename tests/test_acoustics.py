@@ -145,9 +145,9 @@ def test_checkpoints_from_before_every_layer_directions_keep_the_first_layer_onl
     assert TrainConfig.from_dict(TrainConfig().to_dict()).acoustic.direction_every_layer is True
 
 
-def test_the_bundled_demo_loads_with_its_first_layer_direction(capsys):
-    """The demo was trained before the option existed: it loads as it was trained, and
-    ``avgs info --json`` says so."""
+def test_the_bundled_demo_is_source_aware(capsys):
+    """The demo is an impulse-response checkpoint: ``avgs info --json`` says so, and moving
+    the source into the other room makes both ears quieter, as the simulator's truth does."""
     import json
     from pathlib import Path
 
@@ -155,15 +155,16 @@ def test_the_bundled_demo_loads_with_its_first_layer_direction(capsys):
     from avgs.cli import main
 
     demo = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
-    from avgs.checkpoint import load_checkpoint
-
-    weights = load_checkpoint(demo)["binauralizer"]
-    assert weights["diff_mlp.0.weight"].shape == (128, 136)  # h (+) 8 harmonics
-    assert weights["diff_mlp.1.weight"].shape == (128, 128)  # h only
-    mono = np.random.default_rng(0).standard_normal(4096).astype(np.float32)
-    assert np.isfinite(SceneRenderer.load(demo).render((1.0, 1.0, 1.6), 0.0, mono).binaural).all()
+    r = SceneRenderer.load(demo)
+    assert r.source_aware and r.task == "rir"
+    mono = np.random.default_rng(0).standard_normal(22050).astype(np.float32)
+    listener = (2.0, 2.0, 1.6)
+    near = r.render(listener, 0.0, mono, source=(3.0, 2.0, 1.5)).binaural
+    other_room = r.render(listener, 0.0, mono, source=(7.5, 2.0, 1.5)).binaural
+    level = lambda y: 10 * np.log10(np.mean(y.astype(np.float64) ** 2, axis=-1))  # noqa: E731
+    assert np.all(level(near) - level(other_room) > 3.0)
     assert main(["info", str(demo), "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["training"]["direction_every_layer"] is False
+    assert json.loads(capsys.readouterr().out)["task"] == "rir"
 
 
 @pytest.mark.parametrize("encoding", ["fourier", "harmonic"])

@@ -105,7 +105,9 @@ def test_demo_scene_floor_plan():
         pytest.skip("no bundled demo scene")
     scene = torch.load(ckpt, weights_only=True)["scene"]
     f = Footprint.from_outline(scene["outline"].numpy(), scene["bounds"].numpy())
-    assert f.from_outline and len(f.rings) == 1 and 6 <= len(f.rings[0]) <= 12  # the house's L
+    assert f.from_outline and len(f.rings) == 1  # two rooms and a door: one floor plan
     lo, hi = f._a.min(0), f._a.max(0)
-    corner = (hi[0] - 0.1, hi[1] - 0.1)  # the L's missing corner
-    assert not f.contains(corner) and f.contains((lo[0] + 0.1, lo[1] + 0.1))
+    mid_y = (lo[1] + hi[1]) / 2
+    for x in (lo[0] + 0.25 * (hi[0] - lo[0]), lo[0] + 0.75 * (hi[0] - lo[0])):  # in each room
+        assert f.contains((x, mid_y))
+    assert not f.contains((hi[0] + 0.5, mid_y)) and not f.contains((lo[0] - 0.5, mid_y))
