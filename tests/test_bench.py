@@ -14,11 +14,13 @@ from rwavs_writer import write_scene
 
 
 @pytest.mark.slow  # ~35 s: the whole `avgs bench --quick`, training its models (make test-all)
-def test_bench_quick_writes_the_report(tmp_path, capsys):
+def test_bench_quick_writes_the_report(tmp_path, capsys, one_source_ckpt):
+    """Every section, with a mask-model (binaural task) checkpoint for the latency section (the
+    bundled demo is an impulse-response one: its source-aware render is timed in test_rir_model.py)."""
     scene = write_scene(tmp_path / "data", n_train=12, n_val=3, seed=0)
     out = tmp_path / "bench"
     argv = ["bench", "--quick", "--data", str(scene.scene_dir), "--out", str(out), "--presets", "",
-            "--iterations", "8", "--points", "120", "--repeats", "3"]
+            "--iterations", "8", "--points", "120", "--repeats", "3", "--ckpt", str(one_source_ckpt)]
     assert cli_main(argv) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[-1].startswith("inference median ") and lines[-1].endswith(" ms per pose (cpu, demo scene)")
