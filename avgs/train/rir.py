@@ -34,9 +34,7 @@ from avgs.acoustics.points import AudioPoints
 from avgs.acoustics.rir_model import RIRModel, response_waveform
 from avgs.checkpoint import build_checkpoint, config_of, load_checkpoint, outline_from_metadata, save_checkpoint
 from avgs.config import TrainConfig
-from avgs.point_management import AudioPointManager
 from avgs.train.logging import JsonLinesLog, log_paths, plot_curves
-from avgs.train.losses import total_loss, volume_loss
 from avgs.train.stage2 import Stage2Trainer
 
 TASK = "rir"
@@ -122,52 +120,21 @@ def rir_data(responses, log_floor: float, stft, smooth_bins: int = 1) -> RIRData
 class RIRTrainer(Stage2Trainer):
     """Stage 2 for the RIR task: one optimisation step at a time; resumable through ``state_dict``."""
 
+    name = "RIR training"
+
     def __init__(self, model: RIRModel, train_data: RIRData, cfg: TrainConfig, device: str | torch.device = "cpu"):
-        self.model = model.to(device)
-        self.data = train_data
-        self.cfg = cfg
-        self.device = torch.device(device)
-        ac = cfg.acoustic
-        self.total = int(ac.iterations)
-        networks = [p for m in (model.field, model.binauralizer) if m is not None for p in m.parameters()]
-        groups = [
-            {"params": networks, "lr": ac.lr, "name": "networks"},
-            {"params": [model.points.X], "lr": ac.lr_points, "name": "X"},
-            {"params": [model.points.alpha], "lr": ac.lr_alpha, "name": "alpha"},
-        ]
-        self.optimizer = torch.optim.Adam(groups)
-        self.base_lrs = [g["lr"] for g in self.optimizer.param_groups]
-        self.generator = torch.Generator().manual_seed(cfg.seed)  # batch sampling
-        self.manager = AudioPointManager(cfg.points, self.total, generator=torch.Generator().manual_seed(cfg.seed + 1))
-        self.iteration = 0
+        self._init_optimisation(model, train_data, cfg, device)
         self._batch = {k: getattr(train_data, k).to(self.device) for k in ("listener", "source", "yaw", "log_mag")}
 
     def step(self) -> dict:
         """One iteration on a random batch of responses; returns the losses and point bookkeeping."""
-        ac = self.cfg.acoustic
-        self.model.train()
-        self._set_lr()
-        idx = torch.randint(len(self.data), (min(ac.batch_size, len(self.data)),), generator=self.generator).to(self.device)
+        idx = self._begin_step()
         b = {k: v[idx] for k, v in self._batch.items()}
         pred, lis_idx, src_idx = self.model(b["listener"], b["yaw"], b["source"])  # [B, 2, F, N]
         loss_m = torch.nn.functional.mse_loss(pred, b["log_mag"])
         if self.cfg.rir.energy_weight > 0:
             loss_m = loss_m + self.cfg.rir.energy_weight * energy_loss(pred, b["log_mag"])
-        vicinity = torch.cat([lis_idx.reshape(-1), src_idx.reshape(-1)])
-        loss_v = volume_loss(self.model.points.alpha[torch.unique(vicinity)])
-        loss = total_loss(loss_m, loss_v, ac.lambda_a)
-        self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        if not torch.isfinite(loss):
-            raise FloatingPointError(f"RIR training: non-finite loss at iteration {self.iteration}")
-        self.manager.step_post_backward(self.model.points, vicinity, self.model.vicinity_k)
-        self.optimizer.step()
-        self.iteration += 1
-        added = self.manager.maybe_densify(self.iteration, self.model.points, self.optimizer)
-        removed = self.manager.maybe_prune(self.iteration, self.model.points, self.optimizer)
-        return {"loss": loss.item(), "loss_m": loss_m.item(), "loss_v": loss_v.item(),
-                "points": self.model.points.num_points, "added": added, "removed": removed,
-                "lr": self.optimizer.param_groups[0]["lr"]}
+        return self._update(loss_m, lis_idx, src_idx)
 
     @torch.no_grad()
     def predict(self, data: RIRData, chunk: int = 16) -> torch.Tensor:

@@ -33,14 +33,28 @@ def lr_factor(step: int, total: int, warmup_fraction: float, final_fraction: flo
 class Stage2Trainer:
     """One optimisation step at a time; resumable through :meth:`state_dict`."""
 
+    name = "stage 2"
+    "How errors name this training."
+
     def __init__(self, model: AVGSModel, train_data, cfg: TrainConfig, device: str | torch.device = "cpu"):
+        self._init_optimisation(model, train_data, cfg, device)
+        self._to_device = {
+            k: v.to(self.device) for k, v in (("listener", train_data.listener), ("theta", train_data.theta))
+        }
+        self._source = train_data.source.to(self.device)  # [3]
+        self._mono_mag = train_data.mono_stft.abs().to(self.device)  # [C, F, N_t]
+        self._binaural_mag = train_data.binaural_mag.to(self.device)  # [C, 2, F, N_t]
+
+    def _init_optimisation(self, model, train_data, cfg: TrainConfig, device) -> None:
+        """Model, data, Adam over F and B (and the tail's RT60, when B has one), X and alpha,
+        the batch generator and the point manager: what every task's trainer shares."""
         self.model = model.to(device)
         self.data = train_data
         self.cfg = cfg
         self.device = torch.device(device)
         ac = cfg.acoustic
         self.total = int(ac.iterations)
-        tail = model.binauralizer.reverb
+        tail = getattr(model.binauralizer, "reverb", None)  # the impulse-response task's B has no tail
         rt60 = [] if tail is None else [tail.log_rt60]
         networks = [
             p for m in (model.field, model.binauralizer) if m is not None for p in m.parameters()
@@ -63,12 +77,6 @@ class Stage2Trainer:
             cfg.points, self.total, generator=torch.Generator().manual_seed(cfg.seed + 1)
         )
         self.iteration = 0
-        self._to_device = {
-            k: v.to(self.device) for k, v in (("listener", train_data.listener), ("theta", train_data.theta))
-        }
-        self._source = train_data.source.to(self.device)  # [3]
-        self._mono_mag = train_data.mono_stft.abs().to(self.device)  # [C, F, N_t]
-        self._binaural_mag = train_data.binaural_mag.to(self.device)  # [C, 2, F, N_t]
 
     def _set_lr(self) -> None:
         ac = self.cfg.acoustic
@@ -76,24 +84,34 @@ class Stage2Trainer:
         for group, base in zip(self.optimizer.param_groups, self.base_lrs):
             group["lr"] = base * (f if group.get("name") in ("networks", "rt60") else 1.0)
 
-    def step(self) -> dict:
-        """One iteration on a random batch; returns the losses and point bookkeeping."""
+    def _begin_step(self) -> torch.Tensor:
+        """Training mode, this iteration's learning rates, and a random batch's indices [B]."""
         ac = self.cfg.acoustic
         self.model.train()
         self._set_lr()
         idx = torch.randint(len(self.data), (min(ac.batch_size, len(self.data)),), generator=self.generator)
-        idx = idx.to(self.device)
+        return idx.to(self.device)
+
+    def step(self) -> dict:
+        """One iteration on a random batch; returns the losses and point bookkeeping."""
+        idx = self._begin_step()
         listener = self._to_device["listener"][idx]  # [B, 3]
         theta = self._to_device["theta"][idx]  # [B]
         (s_m, s_l, s_r), masks = self.model(listener, theta, self._source, self._mono_mag[idx])
         loss_m = magnitude_loss(s_m, s_l, s_r, self._binaural_mag[idx])
-        vicinity = torch.cat([masks.listener_vicinity.reshape(-1), masks.source_vicinity.reshape(-1)])
+        return self._update(loss_m, masks.listener_vicinity, masks.source_vicinity)
+
+    def _update(self, loss_m: torch.Tensor, listener_vicinity: torch.Tensor, source_vicinity: torch.Tensor) -> dict:
+        """The step after the task's loss: the points' volume prior over both vicinities, the
+        optimizer step and audio-aware point management; returns the losses and bookkeeping."""
+        ac = self.cfg.acoustic
+        vicinity = torch.cat([listener_vicinity.reshape(-1), source_vicinity.reshape(-1)])
         loss_v = volume_loss(self.model.points.alpha[torch.unique(vicinity)])
         loss = total_loss(loss_m, loss_v, ac.lambda_a)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if not torch.isfinite(loss):
-            raise FloatingPointError(f"stage 2: non-finite loss at iteration {self.iteration}")
+            raise FloatingPointError(f"{self.name}: non-finite loss at iteration {self.iteration}")
         self.manager.step_post_backward(self.model.points, vicinity, self.model.vicinity_k)
         self.optimizer.step()
         self.iteration += 1
