@@ -197,6 +197,8 @@ class RIRConfig:
     "Positional-encoding frequencies of each frame's time relative to the direct sound's arrival (distance / c); 0: off (measured no better on rect_small)."
     sound_speed: float = 0.0
     "Speed of sound in normalised units per second (set from the scene's frame at training: 343 m/s times its scale)."
+    distance_slope: bool = True
+    "Add the inverse-distance law's term: a learned slope per frame on the log source distance, which the network cannot flatten outside the training distances (rir_binauralizer.py)."
     smooth_bins: int = 9
     "The targets' power is averaged over this many neighbouring frequency bins before the log: the network learns the spectral envelope, not the random fine structure of a diffuse tail (1: none)."
     floor_db: float = -80.0
@@ -205,8 +207,10 @@ class RIRConfig:
     "STFT frames of a response (0: taken from the scene's responses at training; stored with the checkpoint)."
     length: int = 0
     "Samples of a response (0: the scene's; stored with the checkpoint)."
-    energy_weight: float = 0.0
-    "Weight of the loss on each ear's energy per frequency bin (the log of the power summed over the frames) and on the ears' difference in it: the direct sound's few frames carry the level and the interaural difference, which the per-frame loss, dominated by the diffuse tail, learns too weakly (two_rooms: ILD 0.26 dB predicted against 1.38 dB true, without it). 0: off."
+    energy_weight: float = 1.0
+    "Weight of the loss on each ear's energy per frequency bin (the log of the power summed over the frames) and on the ears' difference in it: the direct sound's few frames carry the level and the interaural difference, which the per-frame loss, dominated by the diffuse tail, learns too weakly (two_rooms: ILD 0.29 dB predicted against 1.54 dB true without it, 1.34 dB with it). 0: off."
+    decay_weight: float = 1.0
+    "Weight of the loss on each ear's energy decay curve (Schroeder; whole band and octave bands; in nats re its start, down to 50 dB): what T60, EDT and C50 read. Without it the per-frame log-magnitude loss averages the decays in the log domain and the predicted T60 comes out short (two_rooms, held out: -17 % bias, T60 error 18.5 %; with it and the energy loss 13.0 %). 0: off."
     phase: Literal["noise", "griffin-lim"] = "noise"
     "Waveform from the predicted magnitudes: a fixed-seed noise phase, or that phase refined by fast Griffin-Lim (same T60 / C50 / EDT on rect_small, 2.4x the render time)."
     phase_iterations: int = 4
@@ -349,6 +353,7 @@ class SynthesisConfig:
 ADDED_LATER = {
     "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False},
     "gaussians": {"cpu_max_pixels": 0},
+    "rir": {"distance_slope": False, "energy_weight": 0.0, "decay_weight": 0.0},
 }
 "Fields absent from older stored configurations, with the value that the older code used."
 

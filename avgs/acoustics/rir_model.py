@@ -118,8 +118,7 @@ class RIRModel(AVGSModel):
         it would otherwise be a constant noise plateau at the floor's level, which lengthens the
         decay (T60 measured about 2.5x too long on rect_small before this). Subtracting the
         threshold makes that region silent and changes louder bins by less than the floor."""
-        threshold = torch.exp(self.binauralizer.log_floor + SILENCE_MARGIN).to(log_mag.dtype)
-        return (torch.exp(log_mag) - threshold).clamp_min(0.0)
+        return silenced_magnitudes(log_mag, self.binauralizer.log_floor)
 
     def masks(self, listener: torch.Tensor, theta: torch.Tensor, source: torch.Tensor,
               cached_source=None, cache: ModelCache | None = None) -> Masks:
@@ -135,6 +134,12 @@ class RIRModel(AVGSModel):
     def forward(self, listener, yaw, source):
         """Training: log magnitudes [B, 2, F, N] and the vicinities (:meth:`log_magnitudes`)."""
         return self.log_magnitudes(listener, yaw, source)
+
+
+def silenced_magnitudes(log_mag: torch.Tensor, log_floor) -> torch.Tensor:
+    """``max(e^y - e^(floor + SILENCE_MARGIN), 0)`` of log magnitudes ``y`` [...] (:meth:`RIRModel.magnitudes`)."""
+    threshold = torch.exp(torch.as_tensor(log_floor, dtype=log_mag.dtype, device=log_mag.device) + SILENCE_MARGIN)
+    return (torch.exp(log_mag) - threshold).clamp_min(0.0)
 
 
 def ear_transfer(mag: torch.Tensor, stft: STFTConfig = STFT) -> torch.Tensor:

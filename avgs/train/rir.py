@@ -8,7 +8,10 @@ surfaces and skips training G). Then G_a, F and the RIR network
 responses (the STFT of each response, per ear, floored ``RIRConfig.floor_db`` below the
 loudest training bin; no per-response normalisation, so level falls with distance):
 
-    L = (1 - lambda_a) MSE(log |S_pred|, log |S_gt|) + lambda_a L_v     (L_v: the vicinity points' prior, stage 2's)
+    L = (1 - lambda_a) [MSE(log |S_pred|, log |S_gt|) + w_e L_energy + w_d L_decay] + lambda_a L_v
+
+(L_energy: each ear's energy per bin and the ears' difference, :func:`energy_loss`; L_decay:
+the energy decay curves, :func:`decay_loss`; L_v: the vicinity points' prior, stage 2's)
 
 with stage 2's optimiser groups, schedule, audio-aware point management and exact resume
 (:class:`RIRTrainer` is a :class:`~avgs.train.stage2.Stage2Trainer` with another batch and
@@ -31,7 +34,7 @@ import torch
 
 from avgs import dsp
 from avgs.acoustics.points import AudioPoints
-from avgs.acoustics.rir_model import RIRModel, response_waveform
+from avgs.acoustics.rir_model import RIRModel, response_waveform, silenced_magnitudes
 from avgs.checkpoint import build_checkpoint, config_of, load_checkpoint, outline_from_metadata, save_checkpoint
 from avgs.config import TrainConfig
 from avgs.train.logging import JsonLinesLog, log_paths, plot_curves
@@ -101,6 +104,44 @@ def energy_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return torch.nn.functional.mse_loss(e_pred, e_true) + torch.nn.functional.mse_loss(ild_pred, ild_true)
 
 
+DECAY_BANDS_HZ = (250.0, 500.0, 1000.0, 2000.0, 4000.0)
+"Edges between the octave bands whose energy decay :func:`decay_loss` fits (besides the whole band)."
+
+DECAY_RANGE_DB = 50.0
+"The decay loss looks at each curve down to this many dB below its start (T60 reads 5 to 35 dB, EDT 0 to 10)."
+
+
+def band_masks(n_freq: int, sample_rate: float, edges_hz=DECAY_BANDS_HZ) -> torch.Tensor:
+    """[K, F] 0/1 float: the whole band, then one row per octave band between ``edges_hz`` (empty bands dropped)."""
+    freqs = torch.linspace(0.0, sample_rate / 2.0, n_freq)  # [F]
+    bounds = [0.0, *edges_hz, math.inf]
+    rows = [torch.ones(n_freq)] + [((freqs >= lo) & (freqs < hi)).float() for lo, hi in zip(bounds[:-1], bounds[1:])]
+    return torch.stack([r for r in rows if r.sum() > 0])
+
+
+def decay_curves(power: torch.Tensor, bands: torch.Tensor) -> torch.Tensor:
+    """Schroeder energy decay curves in nats of power re their start, per ear and band: STFT
+    power [..., 2, F, N] -> [..., 2, K, N]; the curve bottoms out ``DECAY_RANGE_DB + 30`` dB down."""
+    band_power = torch.einsum("kf,...fn->...kn", bands.to(power), power)  # [..., 2, K, N]
+    edc = band_power.flip(-1).cumsum(-1).flip(-1)  # energy from frame n on
+    start = edc[..., :1]
+    return torch.log(edc + start * 10.0 ** (-(DECAY_RANGE_DB + 30.0) / 10.0) + 1e-30) - torch.log(start + 1e-30)
+
+
+def decay_loss(pred: torch.Tensor, target: torch.Tensor, bands: torch.Tensor, log_floor: float) -> torch.Tensor:
+    """MSE of the energy decay curves (:func:`decay_curves`) of predicted and true log magnitudes
+    [B, 2, F, N], over the frames where the true curve is within ``DECAY_RANGE_DB`` of its start.
+
+    The prediction's power is that of the magnitudes a waveform is made of
+    (:func:`~avgs.acoustics.rir_model.silenced_magnitudes`: silence at the floor), the truth's
+    that of the response with the floor's power taken off: the curves T60, EDT and C50 read."""
+    floor_power = math.exp(2.0 * log_floor)
+    d_pred = decay_curves(silenced_magnitudes(pred, log_floor).square(), bands)
+    d_true = decay_curves((torch.exp(2.0 * target) - floor_power).clamp_min(0.0), bands)
+    keep = (d_true > -DECAY_RANGE_DB / 10.0 * math.log(10.0)).float()
+    return ((d_pred - d_true).square() * keep).sum() / keep.sum().clamp_min(1.0)
+
+
 def floored_log_magnitude(rir, log_floor: float, stft, smooth_bins: int = 1) -> torch.Tensor:
     """``log(max(envelope |STFT(rir)|, e^log_floor))``: responses [..., L] -> [..., F, N] float32."""
     return torch.log(envelope_magnitude(rir, stft, smooth_bins).clamp_min(math.exp(log_floor))).float()
@@ -125,6 +166,7 @@ class RIRTrainer(Stage2Trainer):
     def __init__(self, model: RIRModel, train_data: RIRData, cfg: TrainConfig, device: str | torch.device = "cpu"):
         self._init_optimisation(model, train_data, cfg, device)
         self._batch = {k: getattr(train_data, k).to(self.device) for k in ("listener", "source", "yaw", "log_mag")}
+        self._bands = band_masks(cfg.stft.n_freq, cfg.stft.sample_rate).to(self.device)  # [K, F]
 
     def step(self) -> dict:
         """One iteration on a random batch of responses; returns the losses and point bookkeeping."""
@@ -134,6 +176,9 @@ class RIRTrainer(Stage2Trainer):
         loss_m = torch.nn.functional.mse_loss(pred, b["log_mag"])
         if self.cfg.rir.energy_weight > 0:
             loss_m = loss_m + self.cfg.rir.energy_weight * energy_loss(pred, b["log_mag"])
+        if self.cfg.rir.decay_weight > 0:
+            floor = float(self.model.binauralizer.log_floor)
+            loss_m = loss_m + self.cfg.rir.decay_weight * decay_loss(pred, b["log_mag"], self._bands, floor)
         return self._update(loss_m, lis_idx, src_idx)
 
     @torch.no_grad()
@@ -287,6 +332,9 @@ def train_rir(
         with torch.no_grad():
             model.binauralizer.log_floor.fill_(log_floor)
             model.binauralizer.mean.copy_(train.log_mag.mean(0))
+            if model.binauralizer.distance_slope is not None:
+                model.binauralizer.log_distance_mean.fill_(
+                    float(torch.log(torch.linalg.vector_norm(train.source - train.listener, dim=-1).clamp_min(1e-3)).mean()))
     trainer = RIRTrainer(model, train, cfg, cfg.device)
     if resumed is not None:
         try:
