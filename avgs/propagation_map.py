@@ -18,28 +18,55 @@ two numbers per cell, both of the pose's ear filter (:mod:`avgs.acoustics.synthe
 - **ILD** (dB): ``10 log10(sum_f P_left / sum_f P_right)``, positive when the left ear
   is louder (the source on the listener's left, :func:`avgs.data.frame.signed_direction`).
 
-Exact with respect to the single-pose path: cells are
-:meth:`AVGSModel.masks <avgs.acoustics.model.AVGSModel.masks>` of the very poses
-:meth:`SceneRenderer.masks <avgs.inference.SceneRenderer.masks>` builds (the same world to
-normalised map and the same ``signed_direction`` in float64, cast to the model's dtype),
-with the same headroom limit (a pose whose loudest bin gains more than
-:data:`~avgs.inference.HEADROOM_DB` is scaled down to it), so ``pose_levels`` of
-``renderer.masks(...)`` gives the cell's numbers to float rounding (tests/test_propagation_map.py).
+Two ways to compute a cell (``exact``):
 
-Cost and order: one cell costs what one pose's masks cost (the vicinity search, F over the
-k nearest points, B over the F bins: about 95 MFLOP on the demo scene, so a 64x64 map is
-about 390 GFLOP). The model runs a few cells at a time (``chunk``: small blocks keep F's
-per-point temporaries in cache, faster on a CPU than one large batch) and the grid is
-visited coarse to fine (:func:`coarse_to_fine`): every 16th cell first, then every 8th,
-..., so that a partial map (:meth:`PropagationMap.filled`) already covers the whole floor.
-:func:`propagation_map` yields after every ``batch`` cells and stops as soon as ``cancel()``
-says so. Measured: benchmarks/propagation_map.md (``scripts/bench_propagation_map.py``).
+- **exact** (``exact=True``): cells are
+  :meth:`AVGSModel.masks <avgs.acoustics.model.AVGSModel.masks>` of the very poses
+  :meth:`SceneRenderer.masks <avgs.inference.SceneRenderer.masks>` builds (the same world to
+  normalised map and the same ``signed_direction`` in float64, cast to the model's dtype),
+  with the same headroom limit (a pose whose loudest bin gains more than
+  :data:`~avgs.inference.HEADROOM_DB` is scaled down to it), so ``pose_levels`` of
+  ``renderer.masks(...)`` gives the cell's numbers to float rounding. On the demo (impulse
+  responses) a cell is about 135 MFLOP: the RIR network's time MLP and head over all
+  N = 158 frames and F = 257 bins (124 MFLOP), F over the listener's k = 1200 points (10);
+  a 64x64 map about 550 GFLOP.
+- **fast** (the default; :class:`FastMap`): the same network on less of its input, since
+  the map needs energies only, summed over frames and averaged over bins:
+
+  * bins: every ``bin_stride``-th bin and the last (33 of 257), weighted by the bins each
+    stands for (:func:`bin_subset`, the trapezoid rule) in the level and ILD. The models
+    predict mostly smooth spectra (the RIR targets are smoothed over 9 bins; on the demo a
+    log magnitude changes by a median 0.006 nats a bin) but can hold narrow peaks, so a
+    cell that may reach the headroom limit is evaluated at every bin (:data:`PEAK_MARGIN`).
+  * frames (task rir): every frame until the direct sound from the scene's farthest corner
+    has arrived and the analysis window has passed it (:func:`early_frames`: 11 on the
+    demo, which hold about four fifths of a response's energy), then ``tail_frames`` more,
+    geometrically spaced to the last (:func:`frame_nodes`). The network is a continuous
+    function of its time input; the log magnitudes of the frames in between are
+    interpolated linearly (:func:`frame_interpolation`; exact for an exponential decay),
+    then silenced and summed over all frames as :func:`~avgs.acoustics.rir_model.ear_transfer`
+    does. What is lost is the frame-to-frame fine structure of the tail.
+  * the listener's context C_L stays exact (:func:`listener_contexts`). Interpolating it
+    between cells was measured and left out: C_L changes sharply near walls, and on a
+    two-room scene a bilinear C_L from every 2nd cell a side was 1.4 dB off next to the
+    dividing wall (benchmarks/propagation_map.md).
+
+  About 10 MFLOP of the RIR network a cell on the demo (17 frames x 33 bins) and F's 10,
+  against 135: a 64x64 map about 85 GFLOP. The error against the exact map is measured by
+  ``scripts/bench_propagation_map.py`` and bounded in tests/test_propagation_map.py.
+
+Order: the model runs ``chunk`` cells at a time and the grid is visited coarse to fine
+(:func:`coarse_to_fine`): every 16th cell first, then every 8th, ..., so that a partial map
+(:meth:`PropagationMap.filled`) already covers the whole floor. :func:`propagation_map`
+yields after every ``batch`` cells and stops as soon as ``cancel()`` says so; ``workers``
+threads compute a batch's chunks side by side. Measured: benchmarks/propagation_map.md.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Iterator
 
@@ -81,9 +108,10 @@ def _db(x: np.ndarray) -> np.ndarray:
         return np.maximum(10.0 * np.log10(x), LEVEL_FLOOR_DB)
 
 
-def power_levels(power: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(level dB, ILD dB)``, each ``[...]``, of ear powers ``[..., 2, F]`` (:func:`ear_power`)."""
-    per_ear = power.mean(axis=-1)  # [..., 2]
+def power_levels(power: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(level dB, ILD dB)``, each ``[...]``, of ear powers ``[..., 2, F]`` (:func:`ear_power`);
+    ``weights`` [F] (summing to 1): a weighted mean over the bins instead of the plain mean."""
+    per_ear = power.mean(axis=-1) if weights is None else power @ weights  # [..., 2]
     level = _db(per_ear.mean(axis=-1))
     ild = _db(per_ear[..., 0]) - _db(per_ear[..., 1])
     return level, ild
@@ -106,6 +134,91 @@ def _numpy(t):
     if isinstance(t, torch.Tensor):
         return t.detach().double().cpu().numpy()
     return np.asarray(t, dtype=np.float64)
+
+
+# -- what the fast map evaluates -------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FastMap:
+    """What the fast map evaluates of each cell (see the module docstring); ``exact=True`` evaluates all."""
+
+    bin_stride: int = 8
+    "Every bin_stride-th frequency bin, and the last (33 of 257 bins at 8)."
+    tail_frames: int = 6
+    "Task rir: frames evaluated after the early ones (:func:`early_frames`), geometrically spaced to the last."
+
+    def __post_init__(self):
+        for name in ("bin_stride", "tail_frames"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"FastMap.{name} must be a positive integer, got {getattr(self, name)!r}")
+
+
+def bin_subset(n_freq: int, stride: int) -> tuple[torch.Tensor, np.ndarray]:
+    """(bins [f] int64: every ``stride``-th and the last, weights [f] float64 summing to 1): the
+    trapezoid rule over the bin index, so that ``power @ weights`` estimates the mean over all bins."""
+    bins = np.unique(np.append(np.arange(0, n_freq, stride), n_freq - 1))  # [f]
+    if len(bins) == 1:
+        return torch.from_numpy(bins), np.ones(1)
+    gaps = np.diff(bins).astype(np.float64)
+    weights = np.zeros(len(bins))
+    weights[:-1] += gaps / 2
+    weights[1:] += gaps / 2
+    return torch.from_numpy(bins), weights / weights.sum()
+
+
+def early_frames(renderer) -> int:
+    """Frames of the response to evaluate one by one: until the direct sound from the scene's
+    farthest corner (the box's diagonal) has arrived, plus the analysis window's length in
+    frames and one: after that a response is its decaying tail (task rir)."""
+    b, stft = renderer.model.binauralizer, renderer.stft
+    lo, hi = renderer.frame.to_normalised(np.asarray(renderer.bounds, dtype=np.float64))
+    speed = b.cfg.sound_speed if b.cfg.sound_speed > 0 else 343.0 * renderer.frame.scale  # normalised units / s
+    hop = stft.hop_length / stft.sample_rate
+    arrival = float(np.linalg.norm(hi - lo)) / speed / hop  # frames
+    return int(math.ceil(arrival)) + -(-stft.win_length // stft.hop_length) + 1
+
+
+def frame_nodes(n_frames: int, early: int, tail: int) -> torch.Tensor:
+    """Frames [n] int64 to evaluate: ``0 .. early - 1``, then ``tail`` geometrically spaced up to
+    the last frame (fewer where they round to the same frame); all frames when that is as many."""
+    if early + tail >= n_frames:
+        return torch.arange(n_frames)
+    later = np.rint(np.geomspace(early, n_frames - 1, tail)).astype(np.int64)
+    return torch.from_numpy(np.unique(np.concatenate([np.arange(early), later])))
+
+
+def frame_interpolation(nodes: torch.Tensor, n_frames: int) -> torch.Tensor:
+    """``[n, N]`` float32: ``y_nodes @ M`` interpolates values at the frames ``nodes`` (increasing,
+    from 0 to N - 1) linearly to every frame."""
+    x = nodes.double().numpy()
+    frames = np.arange(n_frames, dtype=np.float64)
+    right = np.clip(np.searchsorted(x, frames, side="right"), 1, len(x) - 1)  # [N]
+    left = right - 1
+    w = np.clip((frames - x[left]) / np.maximum(x[right] - x[left], 1e-12), 0.0, 1.0)
+    M = np.zeros((len(x), n_frames))
+    M[left, np.arange(n_frames)] += 1.0 - w
+    M[right, np.arange(n_frames)] += w
+    return torch.from_numpy(M).float()
+
+
+PEAK_MARGIN = 10.0 ** (12.0 / 10.0)
+"""A fast cell whose loudest evaluated bin is within 12 dB (power ratio) of the headroom is evaluated
+again at every bin: the limit needs the loudest of all, and learned spectra can peak between the
+evaluated bins (3.5 dB above them next to the source on a two-room scene, which then missed the limit)."""
+
+CONTEXT_CHUNK = 4
+"Listener contexts per call of F: F's per-point temporaries ([4 k, width]) stay in cache (2.5x faster than 64 on the demo)."
+
+
+def listener_contexts(model, cache, listener: torch.Tensor) -> torch.Tensor:
+    """C_L [n, c] of listener [n, 3] (normalised): the vicinity search and F, as :meth:`AVGSModel.masks`
+    computes them, :data:`CONTEXT_CHUNK` listeners at a time."""
+    parts = []
+    for i in range(0, len(listener), CONTEXT_CHUNK):
+        pos = listener[i : i + CONTEXT_CHUNK]  # [m, 3]
+        parts.append(model.context_at(pos, model.vicinity(pos, cache), cache))  # [m, c]
+    return torch.cat(parts)
 
 
 # -- the grid ------------------------------------------------------------------------------
@@ -229,8 +342,8 @@ class PropagationMap:
 
 def propagation_map(
     renderer, source=None, yaw: float = 0.0, z: float | None = None, size: int | tuple[int, int] = 64,
-    batch: int = 256, chunk: int = 4, cancel: Callable[[], bool] | threading.Event | None = None,
-    grid: MapGrid | None = None,
+    batch: int = 256, chunk: int | None = None, cancel: Callable[[], bool] | threading.Event | None = None,
+    grid: MapGrid | None = None, exact: bool = False, fast: FastMap = FastMap(), workers: int = 1,
 ) -> Iterator[PropagationMap]:
     """Compute the map of ``renderer`` (a :class:`~avgs.inference.SceneRenderer`) for a source
     (world; None: the trained one) and a listener ``yaw`` (degrees), batch by batch.
@@ -238,13 +351,19 @@ def propagation_map(
     Yields a snapshot (its own arrays) after every ``batch`` cells, coarse to fine; the last
     one is :attr:`~PropagationMap.complete`. ``z``: the listener height (default: the middle
     of the scene's box); ``grid``: a ready :class:`MapGrid` instead of ``size`` and ``z``.
-    ``cancel``: a callable or ``threading.Event``, checked before every chunk of ``chunk``
-    cells: when set, the generator returns without yielding again. Runs on the calling
-    thread, without the renderer's lock (the model is read only), so a viewer can run it on a
-    background thread while another renders audio.
+    ``exact``: every bin and frame (the single-pose path's numbers); else what ``fast`` says
+    (the module docstring). ``chunk``: cells per model call (default 4 exact, where small
+    blocks keep F's per-point temporaries in cache, and 32 fast). ``workers``: threads that
+    compute a batch's chunks side by side (each runs torch ops with torch's own thread count;
+    threads, not OpenMP's intra-op pool, because they do not spin-wait on a busy machine).
+    ``cancel``: a callable or ``threading.Event``, checked before every chunk (on the worker
+    that computes it): when set, the generator returns without yielding again. Runs without
+    the renderer's lock (the model is read only), so a viewer can run it on a background
+    thread while another renders audio.
     """
-    if batch < 1 or chunk < 1:
-        raise ValueError(f"batch and chunk must be positive, got {batch} and {chunk}")
+    chunk = (4 if exact else 32) if chunk is None else chunk
+    if batch < 1 or chunk < 1 or workers < 1:
+        raise ValueError(f"batch, chunk and workers must be positive, got {batch}, {chunk} and {workers}")
     stop = cancel.is_set if isinstance(cancel, threading.Event) else (cancel or (lambda: False))
     if grid is None:
         if z is None:
@@ -262,7 +381,6 @@ def propagation_map(
         source_n = frame.to_normalised(source_w)
     src64 = torch.tensor(source_n, dtype=torch.float64)  # [3], as SceneRenderer.pose makes it
     src = src64.to(**as_model)
-    yaw_rad = math.radians(yaw)
     rir = getattr(renderer, "task", "binaural") == "rir"  # the impulse-response task: the response's own ear gains
     with torch.inference_mode():
         cached_source = model.source_context(src, cache)
@@ -275,30 +393,106 @@ def propagation_map(
     ild = np.full((ny, nx), np.nan)
     source_w = np.asarray(source_w, dtype=np.float64)
     lo, hi = np.asarray(renderer.bounds, dtype=np.float64)  # cells outside the box: on its edge, as render() puts them
+    lis64 = torch.from_numpy(frame.to_normalised(np.clip(grid.positions(), lo, hi)))  # [ny * nx, 3] float64
+    theta = signed_direction(lis64, torch.full((ny * nx,), math.radians(yaw), dtype=torch.float64), src64)  # [ny * nx]
+    cell_power = (_ExactCells if exact else _FastCells)(renderer, yaw, src, cached_source, decay, fast)
     headroom = 10.0 ** (HEADROOM_DB / 10.0)  # power
-    for b0 in range(0, len(order), batch):
-        cells = order[b0 : b0 + batch]
-        for c0 in range(0, len(cells), chunk):
-            if stop():
-                return
-            flat = cells[c0 : c0 + chunk]
-            lis64 = torch.from_numpy(frame.to_normalised(np.clip(grid.positions(flat), lo, hi)))  # [n, 3] float64
-            theta = signed_direction(lis64, torch.full((len(flat),), yaw_rad, dtype=torch.float64), src64)  # [n]
+
+    def limited_levels(power: np.ndarray, weights) -> tuple[np.ndarray, np.ndarray]:
+        """(level, ILD) [n] of ear powers [n, 2, f], with SceneRenderer's headroom limit."""
+        if not np.all(np.isfinite(power)):
+            raise ValueError(f"{renderer.path or 'this checkpoint'}: the model gives NaN or Inf masks on the map")
+        peak = power.reshape(len(power), -1).max(axis=-1)  # [n]
+        power *= np.minimum(1.0, headroom / np.maximum(peak, 1e-300))[:, None, None]
+        return power_levels(power, weights)
+
+    def levels(flat: np.ndarray):
+        """(level, ILD) [n] of the cells ``flat``, or None once cancelled."""
+        if stop():
+            return None
+        with torch.inference_mode():
+            power = cell_power(lis64[flat], theta[flat])  # [n, 2, F] (fast: [n, 2, f])
+        near = power.reshape(len(flat), -1).max(axis=-1) > headroom / PEAK_MARGIN if not exact else None  # [n]
+        level_, ild_ = limited_levels(power, cell_power.weights)
+        if near is not None and near.any():  # the limit needs the loudest of all bins: evaluate them all
             with torch.inference_mode():
-                if rir:
-                    power = _response_power(renderer, lis64.to(**as_model), yaw, src, cached_source)  # [n, 2, F]
-                else:
-                    m = model.masks(lis64.to(**as_model), theta.to(**as_model), src, cached_source, cache)
-                    power = ear_power(_numpy(m.mixture), _numpy(m.difference), _numpy(m.reverb), decay)  # [n, 2, F]
-            if not np.all(np.isfinite(power)):
-                raise ValueError(f"{renderer.path or 'this checkpoint'}: the model gives NaN or Inf masks on the map")
-            peak = power.reshape(len(flat), -1).max(axis=-1)  # [n]
-            power *= np.minimum(1.0, headroom / np.maximum(peak, 1e-300))[:, None, None]  # SceneRenderer's limit
-            lv, il = power_levels(power)
-            iy, ix = np.divmod(flat, nx)
-            level[iy, ix], ild[iy, ix] = lv, il
-        done = min(b0 + batch, len(order))
-        yield PropagationMap(grid, source_w, yaw, level.copy(), ild.copy(), done, order)
+                power = cell_power(lis64[flat[near]], theta[flat[near]], every_bin=True)  # [m, 2, F]
+            level_[near], ild_[near] = limited_levels(power, None)
+        return level_, ild_
+
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="avgs-map") if workers > 1 else None
+    try:
+        for b0 in range(0, len(order), batch):
+            cells = order[b0 : b0 + batch]
+            chunks = [cells[c0 : c0 + chunk] for c0 in range(0, len(cells), chunk)]
+            for flat, result in zip(chunks, map(levels, chunks) if pool is None else pool.map(levels, chunks)):
+                if result is None:
+                    return
+                iy, ix = np.divmod(flat, nx)
+                level[iy, ix], ild[iy, ix] = result
+            done = min(b0 + batch, len(order))
+            yield PropagationMap(grid, source_w, yaw, level.copy(), ild.copy(), done, order)
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+class _ExactCells:
+    """Each ear's power per bin ``[n, 2, F]`` of cells, as the single-pose path computes them."""
+
+    weights = None  # the plain mean over all bins
+
+    def __init__(self, renderer, yaw: float, source: torch.Tensor, cached_source, decay, fast=None):
+        self.renderer, self.yaw, self.source, self.cached_source, self.decay = renderer, yaw, source, cached_source, decay
+        self.as_model = dict(device=renderer.device, dtype=renderer.dtype)
+
+    def __call__(self, lis64: torch.Tensor, theta: torch.Tensor) -> np.ndarray:
+        r = self.renderer
+        listener = lis64.to(**self.as_model)
+        if r.task == "rir":
+            return _response_power(r, listener, self.yaw, self.source, self.cached_source)
+        m = r.model.masks(listener, theta.to(**self.as_model), self.source, self.cached_source, r.cache)
+        return ear_power(_numpy(m.mixture), _numpy(m.difference), _numpy(m.reverb), self.decay)
+
+
+class _FastCells:
+    """Each ear's power ``[n, 2, f]`` at a subset of the bins (:attr:`weights` [f]; ``every_bin``:
+    all, [n, 2, F]) and, task rir, from a subset of the frames (:class:`FastMap`); the listener's
+    context is exact."""
+
+    def __init__(self, renderer, yaw: float, source: torch.Tensor, cached_source, decay, fast: FastMap):
+        self.renderer, self.source, self.cached_source = renderer, source, cached_source
+        self.as_model = dict(device=renderer.device, dtype=renderer.dtype)
+        b = renderer.model.binauralizer
+        self.rir = renderer.task == "rir"
+        self.bins, self.weights = bin_subset(b.n_freq, fast.bin_stride)  # [f], [f]
+        self.full_decay, self.decay = decay, None if decay is None else decay[self.bins.numpy()]
+        if self.rir:
+            self.frames = frame_nodes(b.n_frames, early_frames(renderer), fast.tail_frames)  # [n_t]
+            self.interpolate = frame_interpolation(self.frames, b.n_frames).to(**self.as_model)  # [n_t, N]
+            self.yaw_rad = math.radians(yaw % 360.0)  # as SceneRenderer poses a response
+
+    def __call__(self, lis64: torch.Tensor, theta: torch.Tensor, every_bin: bool = False) -> np.ndarray:
+        r = self.renderer
+        model, b = r.model, r.model.binauralizer
+        bins, decay = (None, self.full_decay) if every_bin else (self.bins, self.decay)
+        listener = lis64.to(**self.as_model)  # [n, 3]
+        n = len(listener)
+        context = None
+        if model.field is not None:
+            c_s = self.cached_source[0][None].expand(n, -1)  # [n, c]
+            context = torch.cat([c_s, listener_contexts(model, r.cache, listener)], dim=-1)  # [n, 2c] = C_S (+) C_L
+        if not self.rir:
+            m = b(listener[:, :2], theta.to(**self.as_model), context, r.cache.frequency, bins)
+            return ear_power(_numpy(m.mixture), _numpy(m.difference), _numpy(m.reverb), decay)
+        from avgs.acoustics.rir_model import ear_transfer
+
+        source = self.source[None].expand(n, -1)  # [n, 3]
+        yaw = torch.full((n,), self.yaw_rad, **self.as_model)
+        theta_r = signed_direction(listener, yaw, source)  # [n], as RIRModel.log_magnitudes
+        log_mag = b(listener, source, theta_r, yaw, context, r.cache.frequency, self.frames, bins)  # [n, 2, f, n_t]
+        gains = ear_transfer(model.magnitudes(log_mag @ self.interpolate).float().cpu(), r.stft)  # [n, 2, f]
+        return gains.double().numpy() ** 2
 
 
 def _response_power(renderer, listener: torch.Tensor, yaw: float, source: torch.Tensor, cached_source) -> np.ndarray:

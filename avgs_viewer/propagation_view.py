@@ -3,11 +3,12 @@
 :class:`PropagationView` draws :mod:`avgs.propagation_map` (level or interaural level
 difference over a grid of listener positions, for the current source and yaw) as a
 coloured plane on the floor of any PyVista plotter, with a colour bar titled with its unit.
-The map is computed on its own daemon thread, coarse to fine, and drawn as it fills in;
+The map (the fast one: :class:`avgs.propagation_map.FastMap`) is computed on its own daemon
+thread, with :data:`MAP_WORKERS` threads under it, coarse to fine, and drawn as it fills in;
 a new source, yaw or listener height cancels the computation in progress (newest request
 wins). Listener moves in the plane do not change the map. Before each small chunk of
-cells the thread waits while the audio render worker is busy (``audio_busy``), so the map
-never delays what the user hears.
+cells (32, some 20 ms of one core) the threads wait while the audio render worker is busy
+(``audio_busy``), so the map does not hold up what the user hears.
 
 :class:`ListenerInset` shows G rendered from the listener's pose
 (:class:`avgs.listener_view.ListenerView`) as an image in the lower right corner of the 3D
@@ -32,6 +33,10 @@ from .state import ViewerState
 
 MAP_BATCH = 128
 "Cells per partial update of the map on screen."
+
+MAP_WORKERS = 2
+"""Threads computing the map (``workers`` of :func:`avgs.propagation_map.propagation_map`): two cores.
+Each waits for the audio before every chunk of cells (``audio_busy``)."""
 
 MAP_OPACITY = 0.85
 INSET_CAPTION = "listener's view (G)"
@@ -261,7 +266,7 @@ class PropagationView:
         self.worker.cancel()
         key = self._key = self._pose_key()
         source, yaw, z = key
-        pmap = compute_map(self.scene, source=np.array(source), yaw=yaw, z=z, size=self.size)
+        pmap = compute_map(self.scene, source=np.array(source), yaw=yaw, z=z, size=self.size, workers=MAP_WORKERS)
         self.latest, self.latest_key = pmap, key
         if self.mode is not MapMode.OFF:
             self._draw(pmap)
@@ -293,7 +298,7 @@ class PropagationView:
 
         source, yaw, z = request
         return propagation_map(self.scene, source=np.array(source), yaw=yaw, z=z, size=self.size, batch=MAP_BATCH,
-                               cancel=cancelled)
+                               cancel=cancelled, workers=MAP_WORKERS)
 
     def _partial(self, seq: int, request, pmap) -> None:
         self._post(lambda: self._apply(seq, request, pmap))

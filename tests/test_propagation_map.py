@@ -1,4 +1,5 @@
-"""The propagation map (avgs.propagation_map) against the single-pose path, on the bundled demo scene."""
+"""The propagation map (avgs.propagation_map): the exact map against the single-pose path, the fast
+map against the exact one, on the bundled demo scene (impulse responses) and a one-source mask model."""
 
 from __future__ import annotations
 
@@ -14,10 +15,14 @@ import torch
 from avgs import SceneRenderer
 from avgs.inference import HeadroomLimited
 from avgs.propagation_map import (
-    coarse_to_fine, compute_map, ear_power, floor_grid, pose_levels, power_levels, propagation_map,
+    FastMap, bin_subset, coarse_to_fine, compute_map, early_frames, ear_power, floor_grid, frame_interpolation, frame_nodes,
+    pose_levels, power_levels, propagation_map,
 )
 
 DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
+FAST_TOLERANCE_DB = 0.3
+"""The fast map's largest allowed error against the exact map, level and ILD (measured: at most 0.25 dB on six
+checkpoints, benchmarks/propagation_map.md)."""
 pytestmark = pytest.mark.skipif(not DEMO.is_file(), reason="the bundled demo checkpoint is missing")
 
 
@@ -68,7 +73,7 @@ def test_coarse_to_fine_visits_every_cell_once_coarse_first():
 def test_map_cells_equal_the_single_pose_masks(renderer):
     r = renderer
     source = (3.2, 2.2, 1.2)
-    pmap = compute_map(r, source=source, yaw=30.0, z=1.5, size=8, batch=16, chunk=3)
+    pmap = compute_map(r, source=source, yaw=30.0, z=1.5, size=8, batch=16, chunk=3, exact=True)
     assert pmap.complete and np.all(np.isfinite(pmap.level)) and np.all(np.isfinite(pmap.ild))
     positions = pmap.grid.positions()
     for flat in (0, 9, 27, 40, 63):
@@ -85,11 +90,29 @@ def test_map_applies_the_renderers_headroom(one_source_ckpt):
     r = SceneRenderer.load(one_source_ckpt)
     with torch.no_grad():
         r.model.binauralizer.mix_head.bias += 40.0  # a filter far over the headroom
-    pmap = compute_map(r, yaw=0.0, z=1.5, size=2)
+    pmap = compute_map(r, yaw=0.0, z=1.5, size=2, exact=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", HeadroomLimited)
         level, ild = pose_levels(r.masks(pmap.grid.positions()[3], 0.0), decay_of(r))
     assert pmap.level[1, 1] == pytest.approx(level, abs=1e-4) and pmap.ild[1, 1] == pytest.approx(ild, abs=1e-4)
+    fast = compute_map(r, yaw=0.0, z=1.5, size=2)  # near the limit: evaluated at every bin, as exact
+    assert np.allclose(fast.level, pmap.level, atol=1e-4) and np.allclose(fast.ild, pmap.ild, atol=1e-4)
+
+
+def test_a_narrow_peak_between_the_fast_bins_still_sets_the_headroom_limit():
+    r = SceneRenderer.load(DEMO)
+    b = r.model.binauralizer
+    peak_bin = 57  # not one of the fast map's bins (every 8th)
+    assert peak_bin not in bin_subset(b.n_freq, FastMap().bin_stride)[0].tolist()
+    with torch.no_grad():
+        b.head.bias += 1.5  # every bin 13 dB louder: the limit applies near the source
+        b.head.bias[[peak_bin, b.n_freq + peak_bin]] += 1.0  # and one bin 8.7 dB more, both ears
+    source = (3.0, 2.2, 1.5)
+    exact = compute_map(r, source=source, yaw=0.0, z=1.5, size=16, exact=True)
+    fast = compute_map(r, source=source, yaw=0.0, z=1.5, size=16)
+    assert exact.level.max() > 10.0  # loud cells, limited by the peak bin
+    assert np.abs(fast.level - exact.level).max() <= FAST_TOLERANCE_DB
+    assert np.abs(fast.ild - exact.ild).max() <= FAST_TOLERANCE_DB
 
 
 def test_ild_flips_when_the_source_moves_from_left_to_right():
@@ -127,3 +150,87 @@ def test_grid_covers_the_outline_inside_the_box():
     outline = renderer.outline.reshape(-1, 3)
     assert x0 == pytest.approx(outline[:, 0].min()) and x1 == pytest.approx(outline[:, 0].max())
     assert y0 == pytest.approx(outline[:, 1].min()) and y1 == pytest.approx(outline[:, 1].max())
+
+
+# -- the fast map ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("case", [(None, 0.0), ((2.0, 3.5, 1.2), 120.0), ((7.5, 1.0, 1.5), 250.0)])
+def test_fast_map_is_within_tolerance_of_the_exact_map(renderer, case):
+    source, yaw = case
+    source = source if renderer.source_aware else None  # a one-source model: its trained source, at each yaw
+    fast = compute_map(renderer, source=source, yaw=yaw, z=1.5, size=16)
+    exact = compute_map(renderer, source=source, yaw=yaw, z=1.5, size=16, exact=True)
+    assert fast.complete and np.all(np.isfinite(fast.level)) and np.all(np.isfinite(fast.ild))
+    for kind in ("level", "ild"):
+        error = np.abs(fast.values(kind) - exact.values(kind))
+        assert error.max() <= FAST_TOLERANCE_DB, (kind, error.max())
+        assert np.median(error) <= 0.1, (kind, np.median(error))
+    span = exact.level.max() - exact.level.min()
+    assert span > 10 * FAST_TOLERANCE_DB  # the tolerance is small against what the map shows
+
+
+def test_worker_threads_give_the_same_map(renderer):
+    one = compute_map(renderer, yaw=45.0, z=1.5, size=12, chunk=8)
+    two = compute_map(renderer, yaw=45.0, z=1.5, size=12, chunk=8, workers=2)
+    assert np.array_equal(one.level, two.level) and np.array_equal(one.ild, two.ild)
+    stop = threading.Event()
+    parts = []
+    for part in propagation_map(renderer, yaw=0.0, z=1.5, size=16, batch=16, chunk=4, workers=2, cancel=stop):
+        parts.append(part)
+        stop.set()
+    assert [p.done for p in parts] == [16] and np.isfinite(parts[0].level).sum() == 16
+
+
+def test_subsets_of_frames_and_bins_are_those_entries_of_the_whole_output():
+    r = SceneRenderer.load(DEMO)
+    b = r.model.binauralizer
+    g = torch.Generator().manual_seed(0)
+    lis, src = torch.rand(3, 3, generator=g) - 0.5, torch.rand(3, 3, generator=g) - 0.5
+    theta, yaw = torch.rand(3, generator=g) * 6, torch.rand(3, generator=g) * 6
+    ctx = torch.randn(3, b.context_proj.in_features, generator=g)
+    frames, bins = torch.tensor([0, 3, 40, b.n_frames - 1]), torch.tensor([1, 100, b.n_freq - 1])
+    with torch.inference_mode():
+        whole = b(lis, src, theta, yaw, ctx, r.cache.frequency)  # [3, 2, F, N]
+        part = b(lis, src, theta, yaw, ctx, r.cache.frequency, frames, bins)  # [3, 2, 3, 4]
+    assert part.shape == (3, 2, 3, 4)
+    assert torch.allclose(part, whole[:, :, bins][..., frames], atol=1e-5)
+
+
+def test_bin_subset_of_the_mask_model(binaural):
+    b = binaural.model.binauralizer
+    lis, theta = torch.tensor([[0.1, -0.2], [0.3, 0.4]]), torch.tensor([0.5, -1.0])
+    bins = torch.tensor([0, 17, b.n_freq - 1])
+    ctx = None if b.context_proj is None else torch.randn(2, b.context_proj.in_features, generator=torch.Generator().manual_seed(1))
+    with torch.inference_mode():
+        whole, part = b(lis, theta, ctx), b(lis, theta, ctx, bins=bins)
+    for name in ("mixture", "difference"):
+        assert torch.allclose(getattr(part, name), getattr(whole, name)[:, bins], atol=1e-6)
+    if whole.reverb is not None:
+        assert torch.allclose(part.reverb, whole.reverb[..., bins], atol=1e-6)
+        assert torch.equal(part.decay, whole.decay[bins])
+
+
+def test_quadrature_of_frames_and_bins():
+    bins, weights = bin_subset(257, 8)
+    assert bins[0] == 0 and bins[-1] == 256 and len(bins) == 33 and weights.sum() == pytest.approx(1.0)
+    spectrum = np.linspace(1.0, 3.0, 257)  # a linear spectrum: the trapezoid rule is exact
+    assert spectrum[bins.numpy()] @ weights == pytest.approx(spectrum.mean())
+    nodes = frame_nodes(158, 10, 6)
+    assert nodes[:10].tolist() == list(range(10)) and nodes[-1] == 157 and len(nodes) == 16
+    assert frame_nodes(12, 10, 6).tolist() == list(range(12))  # as many as all: all
+    M = frame_interpolation(nodes, 158)  # [16, 158]
+    assert torch.allclose(M.sum(0), torch.ones(158))
+    assert torch.allclose(M[:, nodes], torch.eye(len(nodes)))  # the evaluated frames as they are
+    line = 0.25 * nodes.float() - 3.0  # a log magnitude falling linearly (an exponential decay)
+    assert torch.allclose(line @ M, 0.25 * torch.arange(158.0) - 3.0, atol=1e-4)
+    with pytest.raises(ValueError, match="bin_stride"):
+        FastMap(bin_stride=0)
+
+
+def test_early_frames_cover_the_direct_sound_from_the_farthest_corner():
+    r = SceneRenderer.load(DEMO)
+    diagonal = float(np.linalg.norm(r.bounds[1] - r.bounds[0]))  # metres
+    arrival = diagonal / 343.0 / (r.stft.hop_length / r.sample_rate)  # frames, at the speed of sound
+    window = r.stft.win_length / r.stft.hop_length
+    assert arrival + window < early_frames(r) <= arrival + window + 3

@@ -92,13 +92,17 @@ class Binauralizer(nn.Module):
 
     def forward(
         self, listener_xy: torch.Tensor, theta: torch.Tensor, context: torch.Tensor | None = None,
-        frequency_features: torch.Tensor | None = None,
+        frequency_features: torch.Tensor | None = None, bins: torch.Tensor | None = None,
     ) -> Masks:
         """listener_xy: [B, 2] normalised; theta: [B] radians (positive = source on the left);
         context: [B, C] or None; ``frequency_features``: :meth:`frequency_features`, cached at inference.
+        ``bins`` [f] (int64 indices; None: all): evaluate only those bins (each bin's rows are
+        independent: the same numbers as those entries of the whole output), masks and decay [.., f].
         Returns :class:`~avgs.acoustics.synthesis.Masks` without vicinity sets."""
         q_f = self.frequency_features() if frequency_features is None else frequency_features  # [F, W]
-        B, F, W = listener_xy.shape[0], self.n_freq, self.width
+        if bins is not None:
+            q_f = q_f[bins]  # [f, W]
+        B, F, W = listener_xy.shape[0], q_f.shape[0], self.width
         pos = positional_encoding(listener_xy, self.cfg.position_frequencies)  # [B, P]
         row = pos @ self.query_proj.weight[:, : self.position_dim].t()  # [B, W]
         q = (q_f + row[:, None, :]).relu_()  # [B, F, W]
@@ -127,4 +131,5 @@ class Binauralizer(nn.Module):
         if self.reverb is None:
             return Masks(mixture, difference)
         gains = self.reverb.gains(g.view(B, F, W))  # [B, 2, F]
-        return Masks(mixture, difference, gains, self.reverb.decay())  # decay [F]
+        decay = self.reverb.decay()  # [F]
+        return Masks(mixture, difference, gains, decay if bins is None else decay[bins])

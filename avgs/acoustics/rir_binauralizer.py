@@ -120,11 +120,14 @@ class RIRBinauralizer(nn.Module):
     def forward(
         self, listener: torch.Tensor, source: torch.Tensor, theta: torch.Tensor, yaw: torch.Tensor,
         context: torch.Tensor | None = None, time_features: torch.Tensor | None = None,
+        frames: torch.Tensor | None = None, bins: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """listener, source [B, 3] normalised; theta, yaw [B] radians; context [B, C] or None;
-        ``time_features``: :meth:`time_features`, cached at inference. Returns log magnitudes [B, 2, F, N]."""
+        ``time_features``: :meth:`time_features`, cached at inference. Returns log magnitudes [B, 2, F, N].
+        ``frames`` [n] / ``bins`` [f] (int64 indices; None: all): evaluate only those frames and
+        bins, the same numbers as those entries of the whole output: [B, 2, f, n]."""
         c = self.cfg
-        B, W, N, F = listener.shape[0], self.width, self.n_frames, self.n_freq
+        B, W, F = listener.shape[0], self.width, self.n_freq
         e = orientation_feature(theta, yaw, c.direction_harmonics)  # [B, D]
         distance = torch.linalg.vector_norm(source - listener, dim=-1)  # [B]
         pose = torch.cat([positional_encoding(listener, c.position_frequencies),
@@ -140,10 +143,19 @@ class RIRBinauralizer(nn.Module):
             h = layer(h).relu()
         h = h + q  # [B, W] residual
         t = self.time_features() if time_features is None else time_features  # [N, W]
+        mean, seconds, slope = self.mean, self.frame_seconds, self.distance_slope  # [2, F, N], [N], [N]
+        if frames is not None:  # a subset of the frames: [n] of each
+            t, mean, seconds = t[frames], mean[..., frames], seconds[frames]
+            slope = None if slope is None else slope[frames]
+        head_w, head_b = self.head.weight, self.head.bias  # [2 F, W], [2 F]
+        if bins is not None:  # a subset of the bins: the head's rows of both ears
+            rows = torch.cat([bins, bins + F])
+            head_w, head_b, mean, F = head_w[rows], head_b[rows], mean[:, bins], len(bins)
+        N = t.shape[0]
         g0 = h[:, None, :] + t[None]  # [B, N, W]
         if self.arrival_proj is not None:
             speed = c.sound_speed if c.sound_speed > 0 else 1.0
-            rel = (self.frame_seconds[None] - distance[:, None] / speed) / self.duration  # [B, N]
+            rel = (seconds[None] - distance[:, None] / speed) / self.duration  # [B, N]
             g0 = g0 + self.arrival_proj(positional_encoding(rel[..., None], c.arrival_frequencies))
         g0 = g0.relu()
         g = g0
@@ -151,8 +163,8 @@ class RIRBinauralizer(nn.Module):
             ge = torch.addmm(layer.bias, e, layer.weight[:, W:].t())  # [B, W]
             g = (g @ layer.weight[:, :W].t()).add_(ge[:, None, :]).relu_()  # [B, N, W]
         g = g + g0
-        out = self.head(g).view(B, N, 2, F).permute(0, 2, 3, 1)  # [B, 2, F, N]
-        if self.distance_slope is not None:
+        out = torch.nn.functional.linear(g, head_w, head_b).view(B, N, 2, F).permute(0, 2, 3, 1)  # [B, 2, F, N]
+        if slope is not None:
             log_d = torch.log(distance.clamp_min(1e-3)) - self.log_distance_mean  # [B]
-            out = out - log_d[:, None, None, None] * self.distance_slope  # [B, 2, F, N]
-        return out + self.mean
+            out = out - log_d[:, None, None, None] * slope  # [B, 2, F, N]
+        return out + mean
