@@ -154,18 +154,27 @@ class StreamEngine:
     ``tag`` (the viewer's pose number); :attr:`live_tag` is the tag of the filter in the
     last block out, and :meth:`wait_live` tells when a tag's first block left the engine.
 
-    ``block`` is the audio block in samples (256 at 22050 Hz: 11.6 ms). The make-up gain
+    ``block`` is the audio block in samples (256 at 22050 Hz: 11.6 ms). ``ahead`` blocks of
+    the clip are read and transformed at once, and their outputs computed in batches while
+    the filter holds (:class:`~avgs.acoustics.convolution.BlockConvolver`): the callback of
+    most blocks only scales and copies one. A new filter still plays from the next block (the
+    blocks computed ahead with the old one are computed again), a new clip from the next
+    block too (the input read ahead is read again from the new clip). The make-up gain
     is fitted once per clip, on the first filter, so that the louder ear plays at
     ``target_db`` dB RMS at full volume; it then stays, so level changes between poses
     stay audible. Volume and play/pause changes ramp over one block.
     """
 
     def __init__(self, sample_rate: int, block: int = 256, target_db: float = -18.0,
-                 convolver: Callable | None = None):
+                 convolver: Callable | None = None, ahead: int = 8):
         if block < 16:
             raise ValueError(f"audio block must be at least 16 samples, got {block}")
+        if ahead < 1:
+            raise ValueError(f"blocks read ahead must be at least 1, got {ahead}")
         self.sample_rate = int(sample_rate)
         self.block = int(block)
+        self.ahead = int(ahead)
+        self._fed_from: list = []  # (clip, position, next clip) before each block fed ahead, oldest first
         self.target_db = float(target_db)
         self._convolver = convolver
         self._lock = threading.Lock()
@@ -191,7 +200,16 @@ class StreamEngine:
         self._fresh = _NONE
         self.blocks = 0              # blocks rendered with sound (not paused)
         self.filters_set = 0
-        self.block_levels = (SILENCE_DB, SILENCE_DB)  # (left, right) dB of the last block out
+        self._last_out: np.ndarray | None = None  # [block, 2] the last block out (None: silence)
+
+    @property
+    def block_levels(self) -> tuple[float, float]:
+        """(left, right) dB RMS of the last block out (measured when read: the meters read a few a second)."""
+        out = self._last_out
+        if out is None:
+            return (SILENCE_DB, SILENCE_DB)
+        left, right = rms_db(out, axis=0)
+        return (float(left), float(right))
 
     # -- control (any thread)
     @property
@@ -215,6 +233,13 @@ class StreamEngine:
         with self._lock:
             return self._pending
 
+    @property
+    def switch_pending(self) -> bool:
+        """Whether a filter set with :meth:`set_filter` waits for the next block that plays the clip
+        (False while paused or playing a signal once: no block would take it soon)."""
+        with self._lock:
+            return self._pending and self.playing and self._once is None
+
     def set_clip(self, mono: np.ndarray) -> None:
         """Loop ``mono [T]`` (at :attr:`sample_rate`, already seamless); the old clip is crossfaded
         into it over the next block, and the make-up gain is fitted again."""
@@ -225,6 +250,7 @@ class StreamEngine:
             raise ValueError("clip has non-finite samples")
         spectrum = ClipSpectrum.of(mono)
         with self._lock:
+            self._unread_ahead()
             if self._clip is None:
                 self._clip, self._pos = mono, 0
             else:
@@ -243,8 +269,8 @@ class StreamEngine:
             raise ValueError("binaural filter has non-finite taps")
         with self._lock:
             if self._conv is None:
-                cls = self._convolver or _block_convolver()
-                self._conv = cls(h, self.block)
+                self._conv = self._convolver(h, self.block) if self._convolver else \
+                    _block_convolver()(h, self.block, batch=self.ahead)
             else:
                 self._conv.set_impulse(h)
             self._impulse = h
@@ -314,17 +340,42 @@ class StreamEngine:
             return self._live_at[tag]
 
     # -- audio thread
-    def _input(self, n: int) -> np.ndarray:
-        """The next ``n`` samples of the looped clip (a new clip crossfaded in). Under the lock."""
-        clip = self._clip
-        x = clip[(self._pos + np.arange(n)) % len(clip)]
-        self._pos = (self._pos + n) % len(clip)
+    def _input(self, blocks: int) -> np.ndarray:
+        """The next ``blocks`` blocks of the looped clip, [blocks * block] (a new clip crossfaded in over
+        the first); notes where each started (:meth:`_unread_ahead`). Under the lock."""
+        n = self.block
+        parts = []
         if self._next_clip is not None:
-            new = self._next_clip
+            clip, new = self._clip, self._next_clip
+            self._fed_from.append((clip, self._pos, new))
             t = (np.arange(n) + 0.5) / n
-            x = x * np.cos(0.5 * np.pi * t) + new[np.arange(n) % len(new)] * np.sin(0.5 * np.pi * t)
+            x = clip[(self._pos + np.arange(n)) % len(clip)]
+            parts.append(x * np.cos(0.5 * np.pi * t) + new[np.arange(n) % len(new)] * np.sin(0.5 * np.pi * t))
             self._clip, self._next_clip, self._pos = new, None, n % len(new)
-        return x.astype(np.float32, copy=False)
+            blocks -= 1
+        clip, pos = self._clip, self._pos
+        self._fed_from.extend((clip, (pos + i * n) % len(clip), None) for i in range(blocks))
+        parts.append(clip[(pos + np.arange(blocks * n)) % len(clip)])
+        self._pos = (pos + blocks * n) % len(clip)
+        return np.concatenate(parts).astype(np.float32, copy=False)
+
+    def _unread_ahead(self) -> None:
+        """Give back the clip read ahead and not played yet (a new clip plays from the next block). Under the lock."""
+        if self._fed_from and self._conv is not None and hasattr(self._conv, "drop_ahead"):
+            self._conv.drop_ahead()
+            self._clip, self._pos, self._next_clip = self._fed_from[0]
+            self._fed_from.clear()
+
+    def _convolved(self) -> np.ndarray:
+        """The next block of the clip through the filter, [2, block]. Under the lock."""
+        conv = self._conv
+        if not hasattr(conv, "pull"):  # a convolver that takes one block at a time
+            self._fed_from.clear()
+            return conv.process(self._input(1))
+        if conv.ahead == 0:
+            conv.feed(self._input(self.ahead))
+        del self._fed_from[0]
+        return conv.pull()
 
     def render_block(self) -> np.ndarray:
         """The next :attr:`block` output samples, [block, 2] float32 (advances the engine)."""
@@ -336,24 +387,25 @@ class StreamEngine:
             if once and (self._gain == 0.0 or self._conv is None or self._clip is None):
                 self._play_once_block(out)  # the clip is silent: the signal plays as it is
                 self.blocks += 1
-                left, right = rms_db(out, axis=0)
-                self.block_levels = (float(left), float(right))
+                self._last_out = out
                 return out
             if self._conv is None or self._clip is None or (self._gain == 0.0 and target == 0.0):
-                self.block_levels = (SILENCE_DB, SILENCE_DB)
+                self._last_out = None
                 return out  # nothing to play yet, or paused: the position holds
-            y = self._conv.process(self._input(n))  # [2, n]
+            y = self._convolved()  # [2, n]
             tag, fresh = self._pending_tag, self._pending
             self._pending = False
             makeup = self.makeup_gain or 1.0
         # Volume, pause and make-up gain (refitted for a new clip) all ramp over the block, never step.
-        ramp = np.linspace(self._gain, target * makeup, n + 1, dtype=np.float32)[1:]  # [n]
-        out[:] = (np.asarray(y, dtype=np.float32) * ramp).T
+        gain = target * makeup
+        if gain == self._gain:
+            np.multiply(y.T, np.float32(gain), out=out)
+        else:
+            out[:] = (y * np.linspace(self._gain, gain, n + 1, dtype=np.float32)[1:]).T  # ramp [n]
         np.clip(out, -1.0, 1.0, out=out)
-        self._gain = target * makeup
+        self._gain = gain
         self.blocks += 1
-        left, right = rms_db(out, axis=0)
-        self.block_levels = (float(left), float(right))
+        self._last_out = out
         if fresh:
             self._fresh = tag
         self.live_tag = tag

@@ -133,6 +133,7 @@ def drive(w, gui: GuiCall, x, n: int = 30, idle_s: float = 5.0, orbit_s: float =
     centre = bounds.mean(axis=0)
     radius = 0.28 * float(min(bounds[1, :2] - bounds[0, :2]))
     latency, delivery, submitted, ready, missed, offsets = [], [], [], [], 0, []
+    paints0 = gui(lambda: w.plotter.frames)
     for i in range(n):
         angle = 2 * np.pi * i / max(n, 1) * 2.3 + 0.4
         z = float(gui(lambda: w.state.listener[2]))
@@ -161,6 +162,7 @@ def drive(w, gui: GuiCall, x, n: int = 30, idle_s: float = 5.0, orbit_s: float =
             ready.append(heard.ready_at - t_send)
             offsets.append(float(np.linalg.norm(listener[:2] - target[:2])))
         time.sleep(float(rng.uniform(0.15, 0.4)))  # the user looks, listens, grabs again
+    paints = gui(lambda: list(w.plotter.paint_seconds)[-(w.plotter.frames - paints0):] if w.plotter.frames > paints0 else [])
     time.sleep(1.0)
     idle_playing = _sleep_cpu(idle_s)
     gui(lambda: w.state.set_playing(False))
@@ -191,7 +193,7 @@ def drive(w, gui: GuiCall, x, n: int = 30, idle_s: float = 5.0, orbit_s: float =
     time.sleep(0.5)
     gui(lambda: (w.view.camera_home(), w.plotter.render()))
     return {"drag_to_audio": _summary(latency), "release_delivery": _summary(delivery),
-            "pose_submitted": _summary(submitted), "filter_ready": _summary(ready), "drags": n,
+            "pose_submitted": _summary(submitted), "filter_ready": _summary(ready), "paint": _summary(paints), "drags": n,
             "missed": missed, "max_handle_offset": max(offsets) if offsets else None,
             "idle_cpu_playing": idle_playing, "idle_cpu_paused": idle_paused,
             "orbit": {"seconds": elapsed, "frames": int(frames), "fps": frames / elapsed, "pointer_moves": k}}
@@ -297,7 +299,8 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, idle_s: float = 5.0
           for name, key, note in (
               ("release delivered to Qt", "release_delivery", "from sending it to the view's event filter"),
               ("pose submitted", "pose_submitted", "from sending it to the released pose reaching the audio path"),
-              ("filter ready", "filter_ready", "from sending it to the engine having the pose's filter"))),
+              ("filter ready", "filter_ready", "from sending it to the engine having the pose's filter"),
+              ("paint", "paint", f"each VTK render into the 3D view during the drags ({r['paint']['n']} paints)"))),
         f"| idle CPU | {r['idle_cpu_playing']:.1f} % of one core playing, {r['idle_cpu_paused']:.1f} % paused | "
         f"process CPU time over {idle_s:.0f} s, nothing touched |",
         f"| orbit | {orbit['fps']:.1f} FPS | real left-button drag on the view for {orbit['seconds']:.1f} s, "

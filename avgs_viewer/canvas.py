@@ -17,9 +17,9 @@ changed, and any number of changes between two paints cost one render. What need
 the pixels at once (screenshots) calls :meth:`SceneCanvas.render_now`.
 
 Sound first: while :attr:`SceneCanvas.hold` says the audio path is making a pose's
-filter (a few ms), a paint keeps the last frame and tries again 2 ms later, for at most
-:data:`HOLD_MAX_S`: a software-GL render, which slows the filter's every step about
-sixfold, never runs between a pose change and its sound.
+filter (a few ms) or the filter waits for its first audio block, a paint keeps the last
+frame and tries again 2 ms later, for at most :data:`HOLD_MAX_S`: a software-GL render,
+whose threads take every core, never runs between a pose change and its sound.
 """
 
 from __future__ import annotations
@@ -40,13 +40,15 @@ class SceneCanvas(QtInteractor):
     """A ``QtInteractor`` with no render timer whose renders are coalesced into repaints.
 
     ``frames`` counts the renders drawn (paints); ``frame_times`` keeps the
-    ``time.perf_counter()`` of the last 1024, for the frame-rate benchmark.
+    ``time.perf_counter()`` of the last 1024, for the frame-rate benchmark, and
+    ``paint_seconds`` how long each of them took (the VTK render into the widget).
     """
 
     def __init__(self, parent=None, **kwargs):
         super().__init__(parent, auto_update=False, **kwargs)
         self.frames = 0
         self.frame_times: deque[float] = deque(maxlen=1024)
+        self.paint_seconds: deque[float] = deque(maxlen=1024)
         iren = self.ren_win.GetInteractor()
         # The interactor (camera orbit, zoom) asks for renders through Render(), which renders
         # only while EnableRender is on and always fires RenderEvent: a repaint request instead.
@@ -113,12 +115,15 @@ class SceneCanvas(QtInteractor):
         iren = self._vtk_iren
         if iren is None:  # closed
             return super().paintGL()
-        if self._waiting():  # sound first: the widget keeps its last frame until the filter is made
+        if self._waiting():  # sound first: the widget keeps its last frame until the filter is made and heard
             return
         iren.EnableRenderOn()
+        t0 = time.perf_counter()
         try:
             super().paintGL()
         finally:
             iren.EnableRenderOff()
+        t1 = time.perf_counter()
         self.frames += 1
-        self.frame_times.append(time.perf_counter())
+        self.frame_times.append(t1)
+        self.paint_seconds.append(t1 - t0)

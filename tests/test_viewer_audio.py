@@ -129,6 +129,88 @@ def test_a_new_clip_is_crossfaded_in_without_a_click():
     np.testing.assert_allclose(b[BLOCK:, 0], gain * tone(330.75, 0.5, 3000, phase=1.0)[BLOCK:5 * BLOCK], atol=1e-5)
 
 
+def test_blocks_read_ahead_switch_filters_and_clips_at_the_next_block_exactly():
+    """The engine reads the clip ahead and computes its blocks in batches; filters set at
+    irregular blocks (inside and at the edges of those batches, two between one pair of blocks)
+    and a new clip mid-batch still play from the very next block: the output equals the
+    direct convolution of what was asked for, block by block."""
+    clip, h = noise(2500, 11), [decaying(20 + i, taps=300 + 211 * i) for i in range(6)]
+    e = engine_with(clip, h[0], ahead=8)
+    assert e.ahead == 8
+    switches = {3: [1], 4: [2], 11: [3, 4], 12: [0], 23: [5]}  # block -> filters set before it (newest wins)
+    out = np.empty((BLOCK, 2), dtype=np.float32)
+    y = []
+    for n in range(40):
+        for i in switches.get(n, []):
+            e.set_filter(h[i], tag=100 + i)
+        e.callback(out, BLOCK, None, None)
+        y.append(out.copy())
+        if n == 0:
+            assert e._conv.ahead == 7  # read ahead: seven blocks transformed, waiting for their turn
+    y = np.concatenate(y)
+    x = np.tile(clip, 8)[:len(y)].astype(np.float64)
+    full = [np.stack([np.convolve(x, f[c].astype(np.float64))[:len(y)] for c in range(2)], axis=1) for f in h]
+    ramp = (np.arange(1, BLOCK + 1) / BLOCK)[:, None]
+    current = 0
+    for n in range(40):
+        s = slice(n * BLOCK, (n + 1) * BLOCK)
+        want = full[current][s]
+        if n in switches:
+            new = switches[n][-1]
+            want = full[current][s] * (1 - ramp) + full[new][s] * ramp
+            current = new
+        if n == 0:
+            want = want * ramp  # fades in from silence
+        np.testing.assert_allclose(y[s], want, atol=3e-5, err_msg=f"block {n}")
+    assert e.live_tag == 105 and e._conv.switches == 5
+
+    # A new clip set while blocks of the old one were read ahead plays from the next block.
+    e2 = engine_with(tone(220.5, 0.5, 2000), np.array([[1.0], [1.0]], np.float32), ahead=8)
+    run(e2, 3)
+    assert e2._conv.ahead > 0  # old clip read ahead
+    new_clip = tone(330.75, 0.5, 3000, phase=1.0)
+    e2.set_clip(new_clip)
+    e2.makeup_gain = 1.0
+    b = run(e2, 12)
+    old_next = np.roll(tone(220.5, 0.5, 2000), -3 * BLOCK)[:BLOCK]
+    t = ((np.arange(BLOCK) + 0.5) / BLOCK)
+    np.testing.assert_allclose(b[:BLOCK, 0], old_next * np.cos(0.5 * np.pi * t) + new_clip[:BLOCK] * np.sin(0.5 * np.pi * t),
+                               atol=1e-5)
+    np.testing.assert_allclose(b[BLOCK:, 0], np.tile(new_clip, 2)[BLOCK:12 * BLOCK], atol=1e-5)
+
+
+def test_the_convolver_fed_ahead_equals_block_by_block_convolution():
+    """BlockConvolver: blocks fed ahead in runs of any length and pulled one by one, responses
+    switched and of growing length, input dropped and fed again: the same output as one block at a time."""
+    from avgs.acoustics.convolution import BlockConvolver
+
+    rng = np.random.default_rng(3)
+    b = 64
+    x = rng.standard_normal(b * 70).astype(np.float32)
+    hs = [(0.03 * rng.standard_normal((2, n))).astype(np.float32) for n in (300, 900, 130, 1500)]
+    switches = {5: 1, 17: 2, 18: 3, 40: 0, 41: 3}
+    one, ahead = BlockConvolver(hs[0], b), BlockConvolver(hs[0], b, batch=8)
+    y_one, y_ahead, fed = [], [], 0
+    for n in range(70):
+        if n in switches:
+            one.set_impulse(hs[switches[n]])
+            ahead.set_impulse(hs[switches[n]])
+        y_one.append(one.process(x[n * b:(n + 1) * b]))
+        if n == 30:  # forget what was fed ahead; feed it again
+            fed -= ahead.drop_ahead()
+        if ahead.ahead == 0:
+            k = min(int(rng.integers(1, 13)), 70 - fed)
+            ahead.feed(x[fed * b:(fed + k) * b])
+            fed += k
+        y_ahead.append(ahead.pull())
+    np.testing.assert_allclose(np.concatenate(y_ahead, axis=1), np.concatenate(y_one, axis=1), atol=2e-5)
+    assert ahead.switches == one.switches == 5
+    with pytest.raises(ValueError, match="feed first"):
+        BlockConvolver(hs[0], b).pull()
+    with pytest.raises(ValueError, match="whole number of blocks"):
+        ahead.feed(np.zeros(b + 1, np.float32))
+
+
 def test_pause_ramps_down_holds_the_position_and_resumes():
     e = engine_with(tone(220.5, 0.5, 3000), np.array([[1.0], [1.0]], np.float32))
     run(e, 3)

@@ -156,3 +156,68 @@ def test_a_typed_position_is_heard(qtbot, window, x):
     settle(qtbot, w)
     assert w.live.heard.request.pose.listener[0] == pytest.approx(target, abs=0.01)
     QtWidgets.QApplication.processEvents()
+
+
+def screen_patch(widget: QtWidgets.QWidget) -> np.ndarray:
+    """[H, W, 3] of ``widget``'s area as the X server shows it (not as the widget would paint itself)."""
+    from PySide6 import QtGui
+
+    g = widget.mapToGlobal(QtCore.QPoint(0, 0))
+    img = QtGui.QGuiApplication.primaryScreen().grabWindow(0, g.x(), g.y(), widget.width(), widget.height()).toImage()
+    img = img.convertToFormat(img.Format.Format_RGB888)
+    arr = np.array(img.constBits(), dtype=np.uint8).reshape(img.height(), img.bytesPerLine())
+    return arr[:, : 3 * img.width()].reshape(img.height(), img.width(), 3)
+
+
+def test_the_meters_repaint_on_screen_without_recomposing_the_3d_view(qtbot, window):
+    """A meter update reaches the screen, and the window holding the OpenGL view is not composed
+    again for it (no swap of the 3D view's window: with software GL that cost ~20 ms a time)."""
+    from PySide6 import QtGui
+
+    w = window
+    screen = QtGui.QGuiApplication.primaryScreen().geometry()
+    meter = w.panel.meter_left
+
+    def on_screen() -> bool:
+        return screen.contains(QtCore.QRect(meter.mapToGlobal(QtCore.QPoint(0, 0)), meter.size()))
+
+    if not on_screen():  # a small virtual screen: slide the window left until the meters show
+        g = meter.mapToGlobal(QtCore.QPoint(0, 0))
+        w.move(w.x() - max(0, g.x() + meter.width() - screen.width() + 10),
+               w.y() - max(0, g.y() + meter.height() - screen.height() + 10))
+        qtbot.waitUntil(on_screen, timeout=5000)
+    w.meter_timer.stop()
+    w.panel.show_meters(-60.0, -60.0)
+    qtbot.wait(500)
+    swaps = []
+    w.plotter.frameSwapped.connect(lambda: swaps.append(1))
+    frames = w.plotter.frames
+    quiet = screen_patch(meter)
+    assert quiet.std() > 5  # the meter is on screen (not a blank grab)
+    w.panel.show_meters(-3.0, -3.0)
+    qtbot.waitUntil(lambda: np.mean(np.any(screen_patch(meter) != quiet, axis=-1)) > 0.5, timeout=5000)
+    qtbot.wait(200)
+    assert swaps == [] and w.plotter.frames == frames
+
+
+def test_a_handle_drag_draws_cheap_frames_then_the_full_one(qtbot, window, x):
+    """While a handle moves, frames are drawn without multisampling (and with fewer, flat points);
+    the handle is still drawn under the pointer; on release the antialiased frame comes back."""
+    w = window
+    idle_samples = w.plotter.render_window.GetMultiSamples()
+    assert idle_samples > 0  # the still frame is antialiased
+    centre = np.asarray(w.state.bounds).mean(axis=0)
+    target = np.array([centre[0] + 0.8, centre[1] - 0.6, w.state.listener[2]])
+    start, end = screen_xy(w, w.state.listener), screen_xy(w, target)
+    x.press(*start)
+    qtbot.waitUntil(lambda: w.drag.dragging == "listener", timeout=5000)
+    for t in np.linspace(0, 1, 8)[1:]:
+        x.move(start[0] + t * (end[0] - start[0]), start[1] + t * (end[1] - start[1]))
+        qtbot.wait(20)
+    qtbot.waitUntil(lambda: w.state.listener[:2] == pytest.approx(target[:2], abs=0.1), timeout=5000)
+    assert w.plotter.render_window.GetMultiSamples() == 0
+    assert blue_pixels_near(w, w.state.listener) > 20  # drawn where the pointer holds it
+    x.release(*end)
+    qtbot.waitUntil(lambda: w.drag.dragging is None, timeout=5000)
+    assert w.plotter.render_window.GetMultiSamples() == idle_samples
+    assert blue_pixels_near(w, w.state.listener) > 20
