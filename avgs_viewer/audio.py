@@ -154,7 +154,9 @@ class StreamEngine:
     ``tag`` (the viewer's pose number); :attr:`live_tag` is the tag of the filter in the
     last block out, and :meth:`wait_live` tells when a tag's first block left the engine.
 
-    ``block`` is the audio block in samples (256 at 22050 Hz: 11.6 ms). ``ahead`` blocks of
+    ``block`` is the audio block in samples (128 at 22050 Hz: 5.8 ms; a new filter waits for the
+    next block, so the block is part of what a drag's sound lags: 256 gave a p95 5-50 ms worse
+    in benchmarks/viewer.md's runs, for about 1 % of a core less). ``ahead`` blocks of
     the clip are read and transformed at once, and their outputs computed in batches while
     the filter holds (:class:`~avgs.acoustics.convolution.BlockConvolver`): the callback of
     most blocks only scales and copies one. A new filter still plays from the next block (the
@@ -165,8 +167,8 @@ class StreamEngine:
     stay audible. Volume and play/pause changes ramp over one block.
     """
 
-    def __init__(self, sample_rate: int, block: int = 256, target_db: float = -18.0,
-                 convolver: Callable | None = None, ahead: int = 8):
+    def __init__(self, sample_rate: int, block: int = 128, target_db: float = -18.0,
+                 convolver: Callable | None = None, ahead: int = 16):
         if block < 16:
             raise ValueError(f"audio block must be at least 16 samples, got {block}")
         if ahead < 1:
