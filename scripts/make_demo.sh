@@ -26,9 +26,9 @@ mkdir -p "$WORK"
   OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --out "$WORK/scene.ckpt" --stage1-only --device "$DEVICE"
 
 # 3. Stage 2 of the impulse-response task: G_a (8000 of G's points), F and the RIR variant of B.
-#    With the ears' energy loss (--rir-energy-weight 1): level and interaural difference twice as close
+#    The defaults: the ears' energy and energy-decay losses and the fall-off on log distance
 #    (docs/results.md "Impulse responses").
-OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --init gs --out "$WORK/scene.ckpt" --audio-points 8000 --rir-energy-weight 1 \
+OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --init gs --out "$WORK/scene.ckpt" --audio-points 8000 \
   --iterations 500 --batch-size 8 --lr 1e-3 --rir-width 256 --eval-every 250
 
 # 4. Release: keep G for drawing, drop the optimizer state (the file stays under 25 MB).

@@ -40,12 +40,14 @@ one term the network cannot bend: ``- beta_t (log d - mean log d)``, a learned s
 (zero at the start). The direct sound's magnitude falls as 1 / d (beta = 1 in its frames),
 the diffuse tail's hardly at all (beta ~ 0), and a ReLU network alone flattens that law
 outside the training pairs' distances: on rect_large, with no training pair nearer than
-0.89 m, the level at 0.5 m was predicted 3.5 dB low without the term. The optional arrival feature (``RIRConfig.arrival_frequencies``, off by
-default): each frame's time relative to the direct sound's arrival ``d / c``
-(``RIRConfig.sound_speed``, normalised units per second, set from the scene's frame at
-training). Measured on data/rir/rect_small (500 iterations): with it (6 frequencies) val
-T60 24.8 %, C50 1.24 dB, EDT 0.042 s, level against distance within 2.6 dB; without it
-24.2 %, 1.20 dB, 0.041 s, within 2.1 dB. No gain, so the paper's inputs are the default.
+0.89 m, the level at 0.5 m was predicted 3.5 dB low without the term (0.3 dB with it).
+
+The optional arrival feature (``RIRConfig.arrival_frequencies``, off by default): each
+frame's time relative to the direct sound's arrival ``d / c`` (``RIRConfig.sound_speed``,
+normalised units per second, set from the scene's frame at training). Measured on
+data/rir/rect_small (500 iterations): with it (6 frequencies) val T60 24.8 %, C50 1.24 dB,
+EDT 0.042 s, level against distance within 2.6 dB; without it 24.2 %, 1.20 dB, 0.041 s,
+within 2.1 dB. No gain, so the paper's inputs are the default.
 
 What made the task learnable at all, measured on rect_small: the targets' floor
 (``RIRConfig.floor_db``). With a -100 dB floor the network memorised the training pairs
