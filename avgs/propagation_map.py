@@ -51,8 +51,8 @@ Two ways to compute a cell (``exact``):
     two-room scene a bilinear C_L from every 2nd cell a side was 1.4 dB off next to the
     dividing wall (benchmarks/propagation_map.md).
 
-  About 10 MFLOP of the RIR network a cell on the demo (17 frames x 33 bins) and F's 10,
-  against 135: a 64x64 map about 85 GFLOP. The error against the exact map is measured by
+  About 13 MFLOP of the RIR network a cell on the demo (21 frames x 33 bins) and F's 10,
+  against 135: a 64x64 map about 94 GFLOP. The error against the exact map is measured by
   ``scripts/bench_propagation_map.py`` and bounded in tests/test_propagation_map.py.
 
 Order: the model runs ``chunk`` cells at a time and the grid is visited coarse to fine
@@ -145,7 +145,7 @@ class FastMap:
 
     bin_stride: int = 8
     "Every bin_stride-th frequency bin, and the last (33 of 257 bins at 8)."
-    tail_frames: int = 6
+    tail_frames: int = 10
     "Task rir: frames evaluated after the early ones (:func:`early_frames`), geometrically spaced to the last."
 
     def __post_init__(self):

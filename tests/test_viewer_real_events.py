@@ -67,16 +67,19 @@ def screen_xy(w: MainWindow, world) -> tuple[float, float]:
 
 
 def heard_ild(qtbot, w: MainWindow, seconds: float = 1.0) -> float:
-    """Left minus right level (dB) of the engine's output blocks over ``seconds``."""
-    diffs = []
+    """Left minus right level (dB) of the engine's output over ``seconds``: the ratio of the two
+    ears' mean power over the blocks sampled (a block of speech is a few ms: one block's
+    difference follows its spectrum, so a median of per-block differences would wander)."""
+    powers = []
     t_end = time.perf_counter() + seconds
     while time.perf_counter() < t_end:
         left, right = w.engine.block_levels
         if min(left, right) > -70:
-            diffs.append(left - right)
+            powers.append((10.0 ** (left / 10.0), 10.0 ** (right / 10.0)))
         qtbot.wait(15)
-    assert len(diffs) > 10, "the engine is not playing"
-    return float(np.median(diffs))
+    assert len(powers) > 10, "the engine is not playing"
+    left, right = np.mean(powers, axis=0)
+    return float(10.0 * np.log10(left / right))
 
 
 def blue_pixels_near(w: MainWindow, world, reach: int = 8) -> int:
@@ -93,15 +96,25 @@ def blue_pixels_near(w: MainWindow, world, reach: int = 8) -> int:
     return int(np.sum((patch[..., 2] > 150) & (patch[..., 2] - patch[..., 0] > 80)))
 
 
+def filter_ild(w: MainWindow) -> float:
+    """Left minus right energy (dB) of the filter the engine plays: a white input's level difference."""
+    h = w.live.heard.result.impulse.astype(np.float64)  # [2, L]
+    return float(10.0 * np.log10(np.sum(h[0] ** 2) / np.sum(h[1] ** 2)))
+
+
 def test_a_real_drag_moves_the_listener_on_screen_and_in_the_ears(qtbot, window, x):
     w = window
+    # Stationary white noise, not the demo's speech: over one second of speech the ears' level
+    # difference follows that second's spectrum (-1.4 to +5.5 dB at one pose of the demo).
+    w.live.set_clip(0.1 * np.random.default_rng(0).standard_normal(2 * w.engine.sample_rate).astype(np.float32))
     source = w.state.source
     z = w.state.listener[2]
     w.state.set_yaw(90.0)  # facing +y: a source at larger x is on the listener's right
     w.state.set_listener((source[0] - 1.2, source[1], z))
     settle(qtbot, w)
     before = heard_ild(qtbot, w)
-    assert before < -0.25  # the right ear is louder (the clip's speech: most energy low, where heads shadow little)
+    assert before == pytest.approx(filter_ild(w), abs=0.5)  # what leaves the engine is the pose's filter
+    assert before < -0.5  # the right ear is louder
 
     target = np.array([source[0] + 1.2, source[1], z])
     start, end = screen_xy(w, w.state.listener), screen_xy(w, target)
@@ -117,7 +130,8 @@ def test_a_real_drag_moves_the_listener_on_screen_and_in_the_ears(qtbot, window,
     assert w.state.listener[:2] == pytest.approx(target[:2], abs=0.1) and w.state.listener[2] == z
     settle(qtbot, w)
     after = heard_ild(qtbot, w)
-    assert after > 0.25 and after - before > 0.75  # the source is now on the left: the left ear is louder
+    assert after == pytest.approx(filter_ild(w), abs=0.5)
+    assert after > 0.5 and after - before > 1.5  # the source is now on the left: the left ear is louder
     assert blue_pixels_near(w, w.state.listener) > 20  # the sphere is drawn where it was dropped
     assert blue_pixels_near(w, (source[0] - 1.2, source[1], z)) == 0  # and no longer where it was
 
