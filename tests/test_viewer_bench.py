@@ -31,3 +31,14 @@ def test_the_bench_drives_the_real_window_and_writes_its_report(tmp_path):
     for line in ("real-event drag to audio: median ", "idle CPU: ", "orbit: ", "GL: ", "Command: "):
         assert line in text
     assert "drag end ->" not in text  # the state-driven numbers are gone
+
+
+def test_a_bad_drag_count_is_one_clear_error(tmp_path, capsys):
+    from avgs_viewer.app import main
+
+    if not DEMO.is_file():
+        pytest.skip("the bundled demo scene is missing (scripts/make_demo.sh)")
+    out = tmp_path / "viewer.md"
+    assert main([str(DEMO), "--bench", str(out), "--bench-drags", "0"]) == 2
+    assert "--bench-drags must be at least 1, got 0" in capsys.readouterr().err
+    assert not out.exists()
