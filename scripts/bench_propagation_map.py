@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import os
-import platform
 import statistics
 import time
 from pathlib import Path
@@ -27,6 +26,7 @@ import numpy as np
 import torch
 
 from avgs import SceneRenderer
+from avgs.bench.machine import cpu_name
 from avgs.propagation_map import FastMap, bin_subset, compute_map, early_frames, frame_nodes, propagation_map
 
 DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
@@ -69,16 +69,6 @@ def flops_per_cell(r, fast: FastMap | None) -> tuple[float, str]:
     if b.reverb is not None:
         per_bin += sum(p.numel() for name, p in b.reverb.head.named_parameters() if name.endswith("weight"))
     return 2.0 * (n_bins * per_bin + field), f"B over {n_bins} bins, F over k = {r.vicinity_size} points"
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.machine()
 
 
 def main() -> None:
