@@ -17,7 +17,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from .state import ViewerState
+from .state import Pose, ViewerState
 
 HANDLES = ("listener", "source")
 
@@ -129,6 +129,34 @@ class DragController:
         else:
             self.state.set_source(target)
         return True
+
+    def follow_map(self, x: float, y: float, span: float = 40.0) -> Callable[[float, float], Pose | None] | None:
+        """For the drag in progress, pressed at (x, y): display (x, y) -> the pose a move there
+        makes, computed without the camera or the state changing (any thread; see
+        :mod:`avgs_viewer.pointer`). None when nothing is dragged or the camera looks along the plane."""
+        from .pointer import PlaneMap
+
+        if self.dragging is None:
+            return None
+        proj, height = self._projector(), self._height
+        display = np.array([[x - span, y - span], [x + span, y - span], [x + span, y + span], [x - span, y + span]])
+        hits = [ray_plane_z(*proj.ray(float(a), float(b)), height) for a, b in display]
+        if any(h is None for h in hits):
+            return None
+        try:
+            plane = PlaneMap.fit(display, np.array([h[:2] for h in hits]))
+        except ValueError:
+            return None
+        name, offset, state = self.dragging, self._offset.copy(), self.state
+
+        def pose_at(px: float, py: float) -> Pose | None:
+            hit = plane(px, py)
+            if hit is None:
+                return None
+            target = np.array([hit[0] + offset[0], hit[1] + offset[1], height])
+            return state.pose_with(listener=target) if name == "listener" else state.pose_with(source=target)
+
+        return pose_at
 
     def release(self, x: float, y: float) -> bool:
         """Drop the handle after a last move to (x, y); True when one was being dragged."""

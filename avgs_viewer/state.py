@@ -234,6 +234,18 @@ class ViewerState:
     def pose(self) -> Pose:
         return Pose(tuple(map(float, self._listener)), self._yaw, tuple(map(float, self._source)))
 
+    def pose_with(self, listener: Any = None, source: Any = None) -> Pose:
+        """The pose that :meth:`set_listener` (keeping the listener's height) or :meth:`set_source`
+        would make, without making it: nothing changes and nothing is emitted (any thread)."""
+        lis, src, yaw = self._listener, self._source, self._yaw
+        if listener is not None:
+            lis = _vec3(listener, "listener").copy()
+            lis[2] = self._listener[2]
+            lis = self._clamp(lis)
+        if source is not None and self.source_fixed is None:
+            src = self._clamp(_vec3(source, "source"))
+        return Pose(tuple(map(float, lis)), yaw, tuple(map(float, src)))
+
     # ------------------------------------------------------------------ display
     @property
     def colour_mode(self) -> ColourMode:

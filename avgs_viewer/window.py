@@ -17,6 +17,7 @@ where it is, and the pose panel says why.
 from __future__ import annotations
 
 import gc
+import os
 import threading
 import traceback
 from pathlib import Path
@@ -241,6 +242,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.view: SceneView | None = None
         self.drag: DragController | None = None
         self.live = None
+        self._follower: Any = None  # PointerFollower on X11 (made at the first drag), False where there is none
         self.engine: audio.StreamEngine | None = None
         self.output: audio.AudioOutput | None = None
         self.error_dialog: QtWidgets.QMessageBox | None = None
@@ -528,6 +530,8 @@ class MainWindow(QtWidgets.QMainWindow):
 
     def _teardown_scene(self) -> None:
         self.map_controls.teardown()
+        if self._follower:
+            self._follower.stop()
         if self.live is not None:
             self.plotter.hold = None
             self.live.close()
@@ -596,12 +600,51 @@ class MainWindow(QtWidgets.QMainWindow):
             x, y = pos.x() * scale, (self.plotter.height() - pos.y() - 1) * scale  # VTK display pixels
             if kind == QtCore.QEvent.Type.MouseButtonPress:
                 if event.button() == QtCore.Qt.MouseButton.LeftButton:
-                    return self.drag.press(x, y)
+                    grabbed = self.drag.press(x, y)
+                    if grabbed and self.drag.dragging is not None:
+                        self._follow_pointer(x, y)
+                    return grabbed
             elif kind == QtCore.QEvent.Type.MouseMove:
                 return self.drag.move(x, y)
             elif event.button() == QtCore.Qt.MouseButton.LeftButton:
-                return self.drag.release(x, y)
+                if self._follower:
+                    self._follower.stop()
+                taken = self.drag.release(x, y)
+                if self.live is not None:
+                    self.live.follow(False)  # the state's pose, unless the follower already asked for it
+                return taken
         return super().eventFilter(obj, event)
+
+    def _follow_pointer(self, x: float, y: float) -> None:
+        """Hand the drag's moves and release to the audio path straight from the X server, ahead of
+        the GUI thread (:mod:`avgs_viewer.pointer`); nothing where that is not possible."""
+        from .pointer import PointerFollower, XPointer
+
+        if self._follower is None:
+            self._follower = False
+            if QtGui.QGuiApplication.platformName() == "xcb" and not os.environ.get("AVGS_VIEWER_NO_POINTER"):
+                try:
+                    self._follower = PointerFollower(XPointer())
+                except OSError:
+                    pass
+        live, pose_at = self.live, self.drag.follow_map(x, y)
+        if not self._follower or live is None or pose_at is None:
+            return
+        scale, height = self.plotter.devicePixelRatioF(), self.plotter.height()
+        origin = self.plotter.mapToGlobal(QtCore.QPoint(0, 0))
+
+        def to_display(root_x: int, root_y: int) -> tuple[float, float]:  # as this filter maps Qt's positions
+            lx, ly = root_x / scale - origin.x(), root_y / scale - origin.y()
+            return lx * scale, (height - ly - 1) * scale
+
+        def moved(px: float, py: float, final: bool) -> None:
+            pose = pose_at(px, py)
+            if pose is not None:
+                live.request(pose)
+
+        live.follow(True)
+        if not self._follower.start(to_display, (x, y), moved, lambda exc: live.follow(False)):
+            live.follow(False)
 
     # ------------------------------------------------------------------ file actions
     def choose_scene(self) -> None:
@@ -678,6 +721,9 @@ class MainWindow(QtWidgets.QMainWindow):
     def closeEvent(self, event: QtGui.QCloseEvent) -> None:  # noqa: N802
         self.meter_timer.stop()
         self._teardown_scene()
+        if self._follower:
+            self._follower.close()
+            self._follower = None
         if self.output is not None:
             self.output.close()
         self.plotter.close()

@@ -24,6 +24,15 @@ from .audio import StreamEngine, filter_levels, make_seamless_loop
 from .state import Pose, ViewerState
 
 
+def same_pose(a: Pose | None, b: Pose | None, tolerance: float = 1e-6) -> bool:
+    """Poses equal to ``tolerance`` (metres, degrees): the follower's and the GUI's arithmetic
+    for one pointer position differ in the last digits."""
+    if a is None or b is None:
+        return False
+    return (abs(a.yaw - b.yaw) <= tolerance and np.allclose(a.listener, b.listener, rtol=0.0, atol=tolerance)
+            and np.allclose(a.source, b.source, rtol=0.0, atol=tolerance))
+
+
 class RenderWorker:
     """Runs ``render(request)`` on one daemon thread, newest request wins.
 
@@ -158,6 +167,8 @@ class LiveAudio:
         "The newest pose whose filter the engine has (None before the first)."
         self.seq = 0
         "Number of the newest pose submitted (the engine's tag for its filter)."
+        self._requested: Pose | None = None  # the newest pose submitted
+        self._following = False
         engine.set_clip(self._as_loop(clip))
         self.worker = RenderWorker(self._render, self._deliver, self._fail, name="avgs-filter")
         state.events.pose.connect(self._pose_changed)
@@ -203,14 +214,28 @@ class LiveAudio:
         self.engine.set_clip(self._as_loop(clip))
         self.request()
 
-    def request(self) -> int:
-        """Compute the state's current pose's filter (called on every pose change); its number."""
+    def request(self, pose: Pose | None = None) -> int:
+        """Compute the filter of ``pose`` (default: the state's current pose; called on every pose
+        change); its number. Any thread."""
         with self._lock:  # numbers follow submission order
-            self.seq = self.worker.submit(PoseRequest(self.state.pose, self.worker.submitted + 1, time.perf_counter()))
+            pose = self.state.pose if pose is None else pose
+            self.seq = self.worker.submit(PoseRequest(pose, self.worker.submitted + 1, time.perf_counter()))
+            self._requested = pose
             return self.seq
 
+    def follow(self, following: bool) -> None:
+        """While True, poses come from a :class:`~avgs_viewer.pointer.PointerFollower` through
+        :meth:`request` ahead of the state, and the state's pose events (the same moves, drawn
+        later) are not requested again. Back to False (the drag's release on the GUI thread),
+        the state's pose is requested unless the follower already asked for it."""
+        self._following = bool(following)
+        if not following and not same_pose(self.state.pose, self._requested):
+            self.request()
+
     def _pose_changed(self, pose: Pose) -> None:
-        self.request()
+        if self._following or same_pose(pose, self._requested):
+            return
+        self.request(pose)
 
     def _render(self, request: PoseRequest) -> Any:
         return pose_filter(self.renderer, request.pose)

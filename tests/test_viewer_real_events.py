@@ -229,3 +229,45 @@ def test_a_handle_drag_draws_cheap_frames_then_the_full_one(qtbot, window, x):
     qtbot.waitUntil(lambda: w.drag.dragging is None, timeout=5000)
     assert w.plotter.render_window.GetMultiSamples() == idle_samples
     assert blue_pixels_near(w, w.state.listener) > 20
+
+
+def test_the_sound_follows_a_drag_while_the_gui_thread_is_busy(qtbot, window, x):
+    """The X pointer, not Qt's event queue, carries a handle drag to the audio path: with the GUI
+    thread blocked (as by a long software-GL paint), the last move and the release still reach
+    the engine; Qt's copies of them, handled afterwards, ask for nothing more."""
+    import threading
+
+    w = window
+    if not w._follower and w._follower is not None:
+        pytest.skip("no X pointer to follow on this platform")
+    z = w.state.listener[2]
+    source = w.state.source
+    w.state.set_listener((source[0] - 1.5, source[1] + 0.3, z))
+    settle(qtbot, w)
+    target = np.array([source[0] - 0.6, source[1] - 0.4, z])
+    start, end = screen_xy(w, w.state.listener), screen_xy(w, target)
+    x.press(*start)
+    qtbot.waitUntil(lambda: w.drag.dragging == "listener", timeout=5000)
+    assert w._follower, "the press came through X: the pointer is followed"
+    x.move(0.5 * (start[0] + end[0]), 0.5 * (start[1] + end[1]))
+    qtbot.wait(50)
+    seq_before = w.live.seq
+
+    def the_hand():  # while the GUI thread sleeps below
+        time.sleep(0.1)
+        x.move(*end)
+        x.release(*end)
+
+    hand = threading.Thread(target=the_hand)
+    hand.start()
+    time.sleep(1.5)  # the GUI thread is blocked: Qt has neither the last move nor the release
+    hand.join()
+    assert w.drag.dragging == "listener"  # Qt has not seen the release yet ...
+    heard = w.live.heard
+    assert heard is not None and heard.request.seq > seq_before
+    assert np.asarray(heard.request.pose.listener)[:2] == pytest.approx(target[:2], abs=0.06)  # ... the ears have
+    assert w.engine.live_tag == heard.request.seq == w.live.seq  # its blocks are leaving the engine
+    qtbot.waitUntil(lambda: w.drag.dragging is None, timeout=5000)
+    assert not w.state.interacting
+    assert w.state.listener == pytest.approx(np.asarray(heard.request.pose.listener), abs=1e-6)  # the same pose, drawn
+    assert w.live.seq == heard.request.seq  # and not computed again

@@ -154,6 +154,86 @@ def test_drag_is_constrained_to_the_bounds_and_misses_pass_through():
     assert np.allclose(s.listener, [1, 1, 1.5])
 
 
+class PinholeCamera:
+    """A perspective camera at ``eye`` looking at ``target`` (z up), focal length ``f`` pixels,
+    principal point (400, 300): what VTK's camera is, for the pointer follower's plane map."""
+
+    def __init__(self, eye=(-2.0, -3.0, 6.0), target=(2.5, 2.0, 1.0), f=700.0):
+        self.eye = np.asarray(eye, dtype=float)
+        fwd = np.asarray(target, dtype=float) - self.eye
+        self.fwd = fwd / np.linalg.norm(fwd)
+        right = np.cross(self.fwd, [0.0, 0.0, 1.0])
+        self.right = right / np.linalg.norm(right)
+        self.up = np.cross(self.right, self.fwd)
+        self.f = f
+
+    def to_display(self, world):
+        d = np.asarray(world, dtype=float) - self.eye
+        depth = d @ self.fwd
+        return np.array([400 + self.f * (d @ self.right) / depth, 300 + self.f * (d @ self.up) / depth])
+
+    def ray(self, x, y):
+        d = self.f * self.fwd + (x - 400) * self.right + (y - 300) * self.up
+        return self.eye.copy(), d / np.linalg.norm(d)
+
+
+def test_follow_map_gives_the_pose_a_move_makes_without_making_it():
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
+    drag = DragController(s, PinholeCamera, handle_radius=0.2)
+    assert drag.follow_map(0, 0) is None  # nothing dragged
+    px = PinholeCamera().to_display(s.listener)
+    assert drag.press(px[0] + 3, px[1] - 2)
+    pose_at = drag.follow_map(px[0] + 3, px[1] - 2)
+    poses = record(s.events.pose)
+    rng = np.random.default_rng(0)
+    for x, y in np.column_stack([rng.uniform(0, 800, 40), rng.uniform(0, 600, 40)]):
+        hit = ray_plane_z(*PinholeCamera().ray(x, y), 1.5)
+        predicted = pose_at(x, y)
+        if hit is None:  # above the horizon: the drag leaves the handle where it is
+            assert predicted is None
+            continue
+        drag.move(x, y)  # what the state does with the same move
+        assert predicted.listener == pytest.approx(tuple(s.listener), abs=1e-9)
+        assert predicted.source == tuple(s.source) and predicted.yaw == s.yaw
+    assert len(poses) > 10  # the moves moved it, the follow map did not
+    drag.release(*PinholeCamera().to_display(s.listener))
+    s2 = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5), source_fixed="one source")
+    assert s2.pose_with(source=(1, 1, 1)).source == (4.0, 3.0, 1.2)  # a fixed source stays
+    assert s2.pose_with(listener=(9, -9, 0)).listener == (5.0, 0.0, 1.5)  # inside, at its height
+
+
+def test_live_audio_takes_followed_poses_first_and_asks_once(tmp_path):
+    from avgs_viewer.audio import StreamEngine
+    from avgs_viewer.state import Pose
+    from avgs_viewer.worker import LiveAudio
+
+    class Filters:  # the renderer's interface: a pose's filter
+        def binaural_filter(self, listener, yaw, source=None):
+            return type("R", (), {"impulse": np.tile(np.float32([[1.0], [0.5]]), (1, 4))})()
+
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
+    engine = StreamEngine(22050, block=128)
+    live = LiveAudio(Filters(), s, engine, np.zeros(2205, np.float32))
+    assert live.worker.wait_idle()
+    first = live.request()
+    live.follow(True)
+    followed = Pose((2.0, 1.0, 1.5), s.yaw, tuple(s.source))
+    seq = live.request(followed)  # from the follower's thread, ahead of the GUI
+    s.set_listener((1.5, 1.0, 1.5))  # Qt's copy of an older move, handled later: not asked for
+    s.set_listener((2.0, 1.0, 1.5))
+    assert live.seq == seq == first + 1
+    live.follow(False)  # the release: the state agrees with what was followed
+    assert live.seq == seq
+    s.set_listener((2.5, 1.0, 1.5))  # an ordinary move again
+    assert live.seq == seq + 1
+    live.follow(True)
+    s.set_listener((3.0, 1.0, 1.5))  # the follower missed this one (it failed)
+    live.follow(False)
+    assert live.seq == seq + 2 and live.worker.wait_idle()
+    assert live.heard.request.pose.listener == (3.0, 1.0, 1.5)
+    live.close()
+
+
 # ---------------------------------------------------------------------- colours
 def test_alpha_projection_finds_the_planted_components_with_fixed_signs():
     rng = np.random.default_rng(0)
