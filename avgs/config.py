@@ -197,8 +197,10 @@ class RIRConfig:
     "Positional-encoding frequencies of each frame's time relative to the direct sound's arrival (distance / c); 0: off (measured no better on rect_small)."
     sound_speed: float = 0.0
     "Speed of sound in normalised units per second (set from the scene's frame at training: 343 m/s times its scale)."
-    distance_slope: bool = True
-    "Add the inverse-distance law's term: a learned slope per frame on the log source distance, which the network cannot flatten outside the training distances (rir_binauralizer.py)."
+    distance_slope: bool = False
+    "Add the inverse-distance law's term: a learned slope per frame on the log source distance (the previous default; the knee below replaced it: rir_binauralizer.py)."
+    distance_knee: bool = True
+    "Add the direct-plus-diffuse law's term: per frame, 0.5 log(1 + r_t^2 / d^2) with a learned critical distance r_t (the direct sound's 1 / d near the source, the diffuse field's constant past r_t), relative to its value at the training pairs' mean distance, which a network alone flattens outside the training distances (rir_binauralizer.py)."
     smooth_bins: int = 9
     "The targets' power is averaged over this many neighbouring frequency bins before the log: the network learns the spectral envelope, not the random fine structure of a diffuse tail (1: none)."
     floor_db: float = -80.0
@@ -353,7 +355,7 @@ class SynthesisConfig:
 ADDED_LATER = {
     "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False},
     "gaussians": {"cpu_max_pixels": 0},
-    "rir": {"distance_slope": False, "energy_weight": 0.0, "decay_weight": 0.0},
+    "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0},
 }
 "Fields absent from older stored configurations, with the value that the older code used."
 

@@ -26,7 +26,7 @@ mkdir -p "$WORK"
   OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --out "$WORK/scene.ckpt" --stage1-only --device "$DEVICE"
 
 # 3. Stage 2 of the impulse-response task: G_a (8000 of G's points), F and the RIR variant of B.
-#    The defaults: the ears' energy and energy-decay losses and the fall-off on log distance
+#    The defaults: the ears' energy and energy-decay losses and the direct-plus-diffuse distance law
 #    (docs/results.md "Impulse responses").
 OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --init gs --out "$WORK/scene.ckpt" --audio-points 8000 \
   --iterations 500 --batch-size 8 --lr 1e-3 --rir-width 256 --eval-every 250

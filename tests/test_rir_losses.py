@@ -73,7 +73,7 @@ def test_decay_loss_ignores_the_level():
 def test_distance_term_follows_the_inverse_distance_law():
     """With the slope at 1 (the direct sound's law) and the network's head at zero, doubling
     the distance lowers every bin by exactly 20 log10 2 = 6.02 dB, at any distance."""
-    net = RIRBinauralizer(RIRConfig(width=16), None, STFT.n_freq, 8, HOP_S)
+    net = RIRBinauralizer(RIRConfig(width=16, distance_slope=True, distance_knee=False), None, STFT.n_freq, 8, HOP_S)
     assert net.distance_slope is not None and torch.equal(net.distance_slope, torch.zeros(8))
     with torch.no_grad():
         net.distance_slope.fill_(1.0)
@@ -89,13 +89,36 @@ def test_distance_term_follows_the_inverse_distance_law():
     assert torch.allclose(y[0], torch.full_like(y[0], math.log(20.0)), atol=1e-5)  # 0.1 re the mean 2: +log 20
 
 
+def test_knee_term_is_the_direct_plus_diffuse_law():
+    """With the critical distance r and the head at zero, the level relative to the training
+    pairs' mean distance is 10 log10((1 + r^2/d^2) / (1 + r^2/mean^2)) dB: 6 dB per doubling
+    of d well inside r (the direct sound's 1/d), none well outside (the diffuse field)."""
+    net = RIRBinauralizer(RIRConfig(width=16), None, STFT.n_freq, 8, HOP_S)  # the default
+    assert net.distance_slope is None and torch.equal(net.log_critical, torch.full((8,), -2.0))
+    mean, r = 2.0, 1.0
+    with torch.no_grad():
+        net.log_critical.fill_(math.log(r / mean))
+        net.log_distance_mean.fill_(math.log(mean))
+    d = torch.tensor([0.01, 0.02, 1.0, 2.0, 100.0, 200.0])
+    listener, zeros = torch.zeros(6, 3), torch.zeros(6)
+    source = torch.stack([d, torch.zeros(6), torch.zeros(6)], dim=-1)
+    with torch.no_grad():
+        y = net(listener, source, zeros, zeros)  # [6, 2, F, 8]
+    db = 20.0 / math.log(10.0)
+    want = 10.0 * torch.log10((1 + r ** 2 / d ** 2) / (1 + r ** 2 / mean ** 2))  # [6]
+    assert torch.allclose(y * db, want[:, None, None, None].expand_as(y), atol=1e-4)
+    assert float((y[0] - y[1]).mean() * db) == pytest.approx(20.0 * math.log10(2.0), abs=0.01)
+    assert float((y[4] - y[5]).mean() * db) == pytest.approx(0.0, abs=0.01)
+
+
 def test_checkpoints_from_before_the_distance_term_build_without_it():
     old = TrainConfig().to_dict()
-    del old["rir"]["distance_slope"]
+    del old["rir"]["distance_slope"], old["rir"]["distance_knee"]
     cfg = TrainConfig.from_dict(old)
-    assert cfg.rir.distance_slope is False and TrainConfig().rir.distance_slope is True
+    assert cfg.rir.distance_slope is False and cfg.rir.distance_knee is False
+    assert TrainConfig().rir.distance_knee is True
     net = RIRBinauralizer(cfg.rir, None, STFT.n_freq, 8, HOP_S)
-    assert net.distance_slope is None
+    assert net.distance_slope is None and net.log_critical is None
     new = RIRBinauralizer(TrainConfig().rir, None, STFT.n_freq, 8, HOP_S)
-    with pytest.raises(RuntimeError, match="distance_slope"):
+    with pytest.raises(RuntimeError, match="log_critical"):
         net.load_state_dict(new.state_dict())  # strict: a mismatch is an error, not a silent drop

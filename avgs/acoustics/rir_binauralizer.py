@@ -13,11 +13,13 @@ all F frequency bins (the time-frequency form). Per pose (listener, yaw, source)
     per frame t (time input, mapped onto [-0.99, 0.99]; t_s its time in seconds, T the response's length):
     g0  = ReLU(h + W_t PE(t) + b_t + W_a PE((t_s - d / c) / T))              W_a: the arrival feature
     g   = MLP_2(g0, e) + g0                                                  4 x (Linear + ReLU); e enters every layer
-    Y   = mean + Linear(g) - beta_t (log d - mean log d)      [2, F] log magnitudes of frame t, both ears
+    Y   = mean + Linear(g) + K_t(d) - K_t(dbar)              [2, F] log magnitudes of frame t, both ears
+    K_t(d) = 0.5 log(1 + r_t^2 / d^2)                        the direct-plus-diffuse law, r_t learned per frame
 
 ``mean`` [2, F, N] is the training responses' mean log magnitude (a buffer stored with the
 weights) and the head starts at zero, so an untrained network predicts the mean response
-and training learns what each pose adds to it. There is no per-response normalisation: the
+(plus the distance law at its starting critical distance: 0.2 dB at half the mean distance,
+1 dB at a quarter) and training learns what each pose adds to it. There is no per-response normalisation: the
 level of each response is part of its log magnitude, so the fall of level with distance is
 learned, not removed. ``log_floor`` is the log of the smallest magnitude the targets hold
 (``RIRConfig.floor_db`` below their loudest bin); a prediction at or below it is silence.
@@ -35,12 +37,19 @@ change of the output (a smooth network of smooth features). The data has four fa
 between, the network interpolates (tests/test_rir_model.py checks both properties).
 
 ``log d`` is a function of the positions the paper's B already takes, given explicitly (the
-level falls with it). With ``RIRConfig.distance_slope`` (the default) the output also holds
-one term the network cannot bend: ``- beta_t (log d - mean log d)``, a learned slope per frame
-(zero at the start). The direct sound's magnitude falls as 1 / d (beta = 1 in its frames),
-the diffuse tail's hardly at all (beta ~ 0), and a ReLU network alone flattens that law
-outside the training pairs' distances: on rect_large, with no training pair nearer than
-0.89 m, the level at 0.5 m was predicted 3.5 dB low without the term (0.3 dB with it).
+level falls with it). With ``RIRConfig.distance_knee`` (the default) the output also holds
+one term the network cannot bend, the room-acoustic law of a source's level against
+distance (Hopkins and Stryker): direct energy falling as 1 / d^2 plus a diffuse energy that
+does not fall, ``K_t(d) = 0.5 log(1 + r_t^2 / d^2)`` in log magnitude, with a critical
+distance ``r_t`` per frame (``log_critical`` = log(r_t / dbar), -2 at the start: a small
+correction) and ``dbar`` the training pairs' mean distance, where the term is zero. A ReLU
+network alone flattens the fall of level outside and between the training pairs'
+distances: on rect_large, with no training pair nearer than 0.89 m and none between 1.0 and
+1.5 m, the level at 0.5 m was 3.5 dB low with no term; a slope per frame on log d
+(``distance_slope``, the previous default: the 1 / d law at every distance) brought it to
+0.3 dB but left the knee where the diffuse field takes over 2.1-2.4 dB high at 1.5 m (three
+seeds); with the knee instead, every distance from 0.5 to 5 m is within 1.74-1.86 dB
+(docs/results.md, "Impulse responses"). Both terms can be on (``distance_slope``).
 
 The optional arrival feature (``RIRConfig.arrival_frequencies``, off by default): each
 frame's time relative to the direct sound's arrival ``d / c`` (``RIRConfig.sound_speed``,
@@ -111,9 +120,14 @@ class RIRBinauralizer(nn.Module):
         nn.init.zeros_(self.head.bias)
         if cfg.distance_slope:  # the inverse-distance law's term, one slope per frame (see the module docstring)
             self.distance_slope = nn.Parameter(torch.zeros(n_frames))  # [N]
-            self.register_buffer("log_distance_mean", torch.tensor(0.0))  # mean log distance of the training pairs
         else:
             self.distance_slope = None
+        if cfg.distance_knee:  # the direct-plus-diffuse law's term, one critical distance per frame
+            self.log_critical = nn.Parameter(torch.full((n_frames,), -2.0))  # [N] log(r_t / mean distance)
+        else:
+            self.log_critical = None
+        if cfg.distance_slope or cfg.distance_knee:
+            self.register_buffer("log_distance_mean", torch.tensor(0.0))  # mean log distance of the training pairs
 
     def time_features(self) -> torch.Tensor:
         """``W_t PE(t) + b_t`` for every frame ``[N, W]``: cacheable."""
@@ -145,10 +159,11 @@ class RIRBinauralizer(nn.Module):
             h = layer(h).relu()
         h = h + q  # [B, W] residual
         t = self.time_features() if time_features is None else time_features  # [N, W]
-        mean, seconds, slope = self.mean, self.frame_seconds, self.distance_slope  # [2, F, N], [N], [N]
+        mean, seconds, slope, knee = self.mean, self.frame_seconds, self.distance_slope, self.log_critical  # [2, F, N], [N], [N], [N]
         if frames is not None:  # a subset of the frames: [n] of each
             t, mean, seconds = t[frames], mean[..., frames], seconds[frames]
             slope = None if slope is None else slope[frames]
+            knee = None if knee is None else knee[frames]
         head_w, head_b = self.head.weight, self.head.bias  # [2 F, W], [2 F]
         if bins is not None:  # a subset of the bins: the head's rows of both ears
             rows = torch.cat([bins, bins + F])
@@ -166,7 +181,12 @@ class RIRBinauralizer(nn.Module):
             g = (g @ layer.weight[:, :W].t()).add_(ge[:, None, :]).relu_()  # [B, N, W]
         g = g + g0
         out = torch.nn.functional.linear(g, head_w, head_b).view(B, N, 2, F).permute(0, 2, 3, 1)  # [B, 2, F, N]
+        if slope is not None or knee is not None:
+            log_d = torch.log(distance.clamp_min(1e-3)) - self.log_distance_mean  # [B] relative to the mean
         if slope is not None:
-            log_d = torch.log(distance.clamp_min(1e-3)) - self.log_distance_mean  # [B]
             out = out - log_d[:, None, None, None] * slope  # [B, 2, F, N]
+        if knee is not None:  # 0.5 log(1 + r^2 / d^2), minus its value at the mean distance (log_d = 0)
+            sp = torch.nn.functional.softplus
+            law = 0.5 * (sp(2.0 * (knee[None] - log_d[:, None])) - sp(2.0 * knee))  # [B, N]
+            out = out + law[:, None, None, :]
         return out + mean

@@ -332,7 +332,7 @@ def train_rir(
         with torch.no_grad():
             model.binauralizer.log_floor.fill_(log_floor)
             model.binauralizer.mean.copy_(train.log_mag.mean(0))
-            if model.binauralizer.distance_slope is not None:
+            if hasattr(model.binauralizer, "log_distance_mean"):
                 model.binauralizer.log_distance_mean.fill_(
                     float(torch.log(torch.linalg.vector_norm(train.source - train.listener, dim=-1).clamp_min(1e-3)).mean()))
     trainer = RIRTrainer(model, train, cfg, cfg.device)
