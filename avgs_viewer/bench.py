@@ -192,7 +192,8 @@ def drive(w, gui: GuiCall, x, n: int = 30, idle_s: float = 5.0, orbit_s: float =
     x.release(x0 + 120 * np.sin(2 * np.pi * k / 150), y0 - 40 * (1 - np.cos(2 * np.pi * k / 150)))
     time.sleep(0.5)
     gui(lambda: (w.view.camera_home(), w.plotter.render()))
-    return {"drag_to_audio": _summary(latency), "release_delivery": _summary(delivery),
+    followed = gui(lambda: bool(w._follower))
+    return {"pointer_follow": followed, "drag_to_audio": _summary(latency), "release_delivery": _summary(delivery),
             "pose_submitted": _summary(submitted), "filter_ready": _summary(ready), "paint": _summary(paints), "drags": n,
             "missed": missed, "max_handle_offset": max(offsets) if offsets else None,
             "idle_cpu_playing": idle_playing, "idle_cpu_paused": idle_paused,
@@ -284,7 +285,10 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, idle_s: float = 5.0
         f"Scene: `{scene_path}`, {setup['points']} audio points ({setup['drawn']} drawn); window "
         f"{setup['window'][0]}x{setup['window'][1]}, 3D view {setup['view'][0]}x{setup['view'][1]}  ",
         f"Audio: {setup['audio']}; blocks of {setup['block']} samples ({block_ms:.1f} ms), "
-        f"pose filters of {setup['filter_taps']} taps",
+        f"pose filters of {setup['filter_taps']} taps  ",
+        "Drags: " + ("followed through the X pointer ahead of Qt's event queue (avgs_viewer/pointer.py; "
+                     "`AVGS_VIEWER_NO_POINTER=1` measures without)" if r["pointer_follow"]
+                     else "through Qt's mouse events only (no X pointer to follow)"),
         "",
         f"real-event drag to audio: median {lat['median_ms']:.1f} ms, p95 {lat['p95_ms']:.1f} ms",
         f"idle CPU: {r['idle_cpu_playing']:.1f} % of one core",
