@@ -327,9 +327,8 @@ def simulated_responses(scene_dir, sources_world, listener_world, yaw: float = 0
 def test_level_against_source_distance_follows_the_simulator(tmp_path):
     """rect_small, 500 iterations: at a fixed listener, sources every 0.5 m along the longest line
     the room allows (0.5 m up to 5 m; 2 m in rect_small): the predicted level falls with distance
-    and stays within 3 dB of the simulator's. (The issue's target is 2 dB; measured on
-    data/rir/rect_small: -2.6, -1.3, -0.9, -1.0 dB at 0.5, 1, 1.5, 2 m: the closest source, nearer
-    than most training pairs, is under-predicted.)"""
+    and stays within 2 dB of the simulator's (measured with the distance law: -0.69, -0.27, -0.48,
+    -0.69 dB at 0.5, 1, 1.5, 2 m; with the slope on log d before it: -2.6, -1.3, -0.9, -1.0 dB)."""
     from avgs.data.synth.poses import is_walkable
     from avgs.data.synth.simulate import load_spec
     from avgs.train.rir import rir_quick_config, train_rir
@@ -360,5 +359,5 @@ def test_level_against_source_distance_follows_the_simulator(tmp_path):
     n = len(sources)
     pred = level_db(r.predict_responses(r.frame.to_normalised(sources), np.repeat(r.frame.to_normalised(listener)[None], n, 0),
                                         np.zeros(n)))
-    assert np.max(np.abs(pred - truth)) < 3.0, (truth.round(2), pred.round(2))
+    assert np.max(np.abs(pred - truth)) < 2.0, (truth.round(2), pred.round(2))
     assert pred[0] > pred[-1] + 1.0  # it falls with distance
