@@ -124,9 +124,6 @@ class PointerFollower:
         self.pointer = pointer
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self.finished = threading.Event()
-        "Set when the follow in progress has ended (button up, stopped or failed)."
-        self.finished.set()
 
     def start(self, to_display: Callable[[int, int], tuple[float, float]], expect: tuple[float, float],
               moved: Callable[[float, float, bool], None], failed: Callable[[BaseException], None],
@@ -143,13 +140,12 @@ class PointerFollower:
         if not down or abs(x - expect[0]) > tolerance_px or abs(y - expect[1]) > tolerance_px:
             return False
         self._stop = threading.Event()
-        self.finished = threading.Event()
-        self._thread = threading.Thread(target=self._run, args=(to_display, moved, failed, (rx, ry), self._stop,
-                                                                self.finished), name="avgs-pointer", daemon=True)
+        self._thread = threading.Thread(target=self._run, args=(to_display, moved, failed, (rx, ry), self._stop),
+                                        name="avgs-pointer", daemon=True)
         self._thread.start()
         return True
 
-    def _run(self, to_display, moved, failed, last, stop, finished) -> None:
+    def _run(self, to_display, moved, failed, last, stop) -> None:
         try:
             while not stop.is_set():
                 rx, ry, down = self.pointer.query()
@@ -163,8 +159,6 @@ class PointerFollower:
                 time.sleep(POLL_SECONDS)
         except BaseException as exc:  # reported; the drag goes on through Qt
             failed(exc)
-        finally:
-            finished.set()
 
     def stop(self) -> None:
         """End the follow in progress (the GUI thread saw the release first); no callback after this returns

@@ -19,9 +19,9 @@ all F frequency bins (the time-frequency form). Per pose (listener, yaw, source)
 ``mean`` [2, F, N] is the training responses' mean log magnitude (a buffer stored with the
 weights) and the head starts at zero, so an untrained network predicts the mean response
 (plus the distance law at its starting critical distance: 0.2 dB at half the mean distance,
-1 dB at a quarter) and training learns what each pose adds to it. There is no per-response normalisation: the
-level of each response is part of its log magnitude, so the fall of level with distance is
-learned, not removed. ``log_floor`` is the log of the smallest magnitude the targets hold
+1 dB at a quarter) and training learns what each pose adds to it. There is no per-response
+normalisation: the level of each response is part of its log magnitude, so the fall of
+level with distance is learned, not removed. ``log_floor`` is the log of the smallest magnitude the targets hold
 (``RIRConfig.floor_db`` below their loudest bin); a prediction at or below it is silence.
 
 Why time-frequency and not one sample per time input: a response of L ~ 10^4 samples per
