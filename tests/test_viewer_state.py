@@ -327,3 +327,50 @@ def test_worker_reports_errors_and_keeps_going():
     assert errors == ["negative"] and results == [2]
     with pytest.raises(RuntimeError, match="closed"):
         w.submit(3)
+
+
+def test_pointer_follower_reports_moves_then_the_release_and_survives_a_lost_server():
+    from avgs_viewer.pointer import PointerFollower
+
+    class ScriptedPointer:  # what XQueryPointer answers, one reading per call
+        def __init__(self, readings, then=None):
+            self.readings, self.then = list(readings), then
+
+        def query(self):
+            if self.readings:
+                return self.readings.pop(0)
+            if self.then is not None:
+                raise self.then
+            return (30, 40, False)
+
+    def follow(pointer, expect=(10.0, 20.0)):
+        moved, failed = [], []
+        f = PointerFollower(pointer)
+        started = f.start(lambda rx, ry: (float(rx), float(ry)), expect, lambda x, y, final: moved.append((x, y, final)),
+                          failed.append)
+        if started:
+            f._thread.join(5)
+        return started, moved, failed
+
+    # pressed at (10, 20), held still, moved twice, released at (30, 40)
+    ok, moved, failed = follow(ScriptedPointer([(10, 20, True), (10, 20, True), (12, 25, True), (30, 40, True),
+                                                (30, 40, False)]))
+    assert ok and failed == []
+    assert moved == [(12.0, 25.0, False), (30.0, 40.0, False), (30.0, 40.0, True)]
+    # a press that did not come through X (pointer elsewhere, or button up): not followed
+    assert follow(ScriptedPointer([(200, 20, True)]))[0] is False
+    assert follow(ScriptedPointer([(10, 20, False)]))[0] is False
+    # the X server goes away mid-drag: reported once, nothing more
+    ok, moved, failed = follow(ScriptedPointer([(10, 20, True), (11, 20, True)], then=OSError("gone")))
+    assert ok and moved == [(11.0, 20.0, False)] and len(failed) == 1 and isinstance(failed[0], OSError)
+    # stopped by the GUI thread (it saw the release first): no callback after stop() returns
+    endless = ScriptedPointer([(10, 20, True)] + [(10 + k % 7, 20, True) for k in range(100000)])
+    moved = []
+    f = PointerFollower(endless)
+    assert f.start(lambda rx, ry: (float(rx), float(ry)), (10.0, 20.0), lambda x, y, final: moved.append(x),
+                   lambda exc: None)
+    time.sleep(0.05)
+    f.stop()
+    seen = len(moved)
+    time.sleep(0.05)
+    assert seen > 0 and len(moved) == seen
