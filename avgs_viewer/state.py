@@ -169,13 +169,18 @@ class ViewerState:
     def listener(self) -> np.ndarray:
         return self._listener.copy()
 
-    def set_listener(self, xyz: Any, keep_height: bool = True) -> None:
-        """Move the listener in xy, kept at its own height (unless ``keep_height`` is False,
-        as for a typed position) and inside the room."""
+    def _placed_listener(self, xyz: Any, keep_height: bool, what: str | None = None) -> np.ndarray:
+        """Where the listener goes for ``xyz``: at its own height if ``keep_height``, inside the room
+        (``what`` given: a clamp is announced, see :meth:`_clamp`)."""
         xyz = _vec3(xyz, "listener").copy()
         if keep_height:
             xyz[2] = self._listener[2]
-        xyz = self._clamp(xyz, "listener")
+        return self._clamp(xyz, what)
+
+    def set_listener(self, xyz: Any, keep_height: bool = True) -> None:
+        """Move the listener in xy, kept at its own height (unless ``keep_height`` is False,
+        as for a typed position) and inside the room."""
+        xyz = self._placed_listener(xyz, keep_height, "listener")
         if np.array_equal(xyz, self._listener):
             return
         self._listener = xyz
@@ -239,9 +244,7 @@ class ViewerState:
         would make, without making it: nothing changes and nothing is emitted (any thread)."""
         lis, src, yaw = self._listener, self._source, self._yaw
         if listener is not None:
-            lis = _vec3(listener, "listener").copy()
-            lis[2] = self._listener[2]
-            lis = self._clamp(lis)
+            lis = self._placed_listener(listener, keep_height=True)
         if source is not None and self.source_fixed is None:
             src = self._clamp(_vec3(source, "source"))
         return Pose(tuple(map(float, lis)), yaw, tuple(map(float, src)))

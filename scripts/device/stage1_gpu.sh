@@ -8,7 +8,7 @@
 #             from prepare import pack_scene; pack_scene(Path('data/stripped/demo_house'), Path('.gpu/data/stripped/demo_house'), True)"
 #         pip download (README of the device tool) gsplat soundfile cffi pycparser tqdm into .gpu/whl
 #   device run: bash scripts/device/stage1_gpu.sh        carry: .gpu
-# $OUT gets the logs and the stage-1 file in 15 MB parts (cat stage1.pt.part* > stage1.pt).
+# $OUT gets stage 2's log and the stage-1 file in 15 MB parts (cat stage1.pt.part* > stage1.pt).
 set -u
 python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .gpu/whl/*.whl 2>&1 | grep -v WARNING | tail -2
 export PYTHONPATH=$PWD:/tmp/site PYTHONUNBUFFERED=1
@@ -21,7 +21,5 @@ AVGS_SFM_POINTS=.gpu/sfm_demo_house.npz $A train $S --out $W/stage1_gpu.ckpt --i
 T1=$(date +%s); echo "stage 1 (GPU, with gsplat's first compile): $((T1 - T0)) s"
 $A train $S --out $W/gs_from_gpu.ckpt --init gs --stage1 $W/stage1_gpu.ckpt.stage1.pt --iterations 2000 --eval-every 500 --device cuda --no-progress 2>&1 | tail -3
 echo "stage 2 (GPU): $(( $(date +%s) - T1 )) s"
-cp $W/stage1_gpu.ckpt.log.jsonl $OUT/stage1_gpu.log.jsonl 2>/dev/null
-cp $W/gs_from_gpu.ckpt.log.jsonl $OUT/gs_from_gpu.log.jsonl 2>/dev/null
-ls -la $W
+cp $W/gs_from_gpu.ckpt.log.jsonl $OUT/gs_from_gpu.log.jsonl  # stage 1's own log is the stage-1 file's history
 split -b 15M -d $W/stage1_gpu.ckpt.stage1.pt $OUT/stage1.pt.part
