@@ -318,6 +318,10 @@ class TrainConfig:
         return self
 
 
+MID_PHASE_ITERATIONS = 12
+"Fast Griffin-Lim iterations of the default synthesis (phase ``mid``): its MAG then matches or beats 8 per ear."
+
+
 @dataclass(frozen=True)
 class SynthesisConfig:
     """How a pose's masks become a waveform (render time, not training).
@@ -325,31 +329,48 @@ class SynthesisConfig:
     The masks are time-invariant, so a pose is a filter: its binaural impulse response
     (:mod:`avgs.acoustics.impulse_response`: a minimum-phase direct part and the
     reverberant tail as decaying noise). ``filter`` convolves the input with it: linear,
-    block-streamable, what the explorer plays. ``spectrogram`` makes a waveform whose STFT
-    magnitudes are B's predicted ear magnitudes (what MAG scores), with the phase of the
-    filter's output (``phase="filter"``) or of the source (``"source"``, the paper's and
-    AV-NeRF's synthesis), refined by ``phase_iterations`` of fast Griffin-Lim (Perraudin
-    et al. 2013; :func:`avgs.dsp.griffin_lim`). Speed and error of each: docs/results.md.
-    Checkpoints with the conv head (``--post-conv``), whose output is not a filter, use
-    ``spectrogram`` with the source's phase.
+    what the explorer plays. ``spectrogram`` makes a waveform whose STFT magnitudes are B's
+    predicted ear magnitudes (what MAG scores), with a phase:
+
+    - ``mid`` (default): one phase, retrieved by fast Griffin-Lim (Perraudin et al. 2013;
+      :mod:`avgs.phase_retrieval`) for the mid magnitudes ``s_m`` from the source's phase, and
+      given to both ears, as the paper's masks give both ears the source's phase: half the
+      cost of retrieving each ear's.
+    - ``filter``: the phase of the input through the pose's filter, per ear.
+    - ``source``: the source's (the paper's and AV-NeRF's synthesis).
+
+    ``phase_iterations`` of fast Griffin-Lim refine it (``filter``/``source``: per ear).
+    Speed and error of each: docs/results.md. Checkpoints with the conv head
+    (``--post-conv``), whose output is not a filter, use the source's phase.
     """
 
     method: Literal["filter", "spectrogram"] = "spectrogram"
     "filter: convolve with the pose's binaural impulse response; spectrogram: the predicted ear magnitudes with a phase."
-    phase: Literal["filter", "source"] = "filter"
-    "With method spectrogram: take the phase of the filter's output, or of the source (the paper's)."
-    phase_iterations: int = 0
-    "With method spectrogram: fast Griffin-Lim iterations from that phase (0: none)."
+    phase: Literal["mid", "filter", "source"] = "mid"
+    "With method spectrogram: one phase retrieved for the mid magnitudes (both ears), the filter output's, or the source's."
+    phase_iterations: int | None = None
+    "With method spectrogram: fast Griffin-Lim iterations (None: MID_PHASE_ITERATIONS for mid, 0 for the others)."
     phase_momentum: float = 0.99
     "Momentum of fast Griffin-Lim (0 is the original Griffin-Lim)."
 
     def __post_init__(self):
         if self.method not in ("filter", "spectrogram"):
             raise ValueError(f"synthesis method must be 'filter' or 'spectrogram', got {self.method!r}")
-        if self.phase not in ("filter", "source"):
-            raise ValueError(f"synthesis phase must be 'filter' or 'source', got {self.phase!r}")
-        if self.phase_iterations < 0:
+        if self.phase not in ("mid", "filter", "source"):
+            raise ValueError(f"synthesis phase must be 'mid', 'filter' or 'source', got {self.phase!r}")
+        if self.phase_iterations is not None and self.phase_iterations < 0:
             raise ValueError(f"phase_iterations must be >= 0, got {self.phase_iterations}")
+        if not 0.0 <= self.phase_momentum < 1.0:
+            raise ValueError(f"phase_momentum must be in [0, 1), got {self.phase_momentum}")
+
+    @property
+    def iterations(self) -> int:
+        """Fast Griffin-Lim iterations this synthesis does (``phase_iterations`` or the phase's default)."""
+        if self.method == "filter":
+            return 0
+        if self.phase_iterations is not None:
+            return self.phase_iterations
+        return MID_PHASE_ITERATIONS if self.phase == "mid" else 0
 
 
 ADDED_LATER = {

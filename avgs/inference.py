@@ -9,10 +9,10 @@ happens here and nowhere else. Rendering runs the model's own code
 until the source moves. The masks are time-invariant, so a pose is a filter, its binaural
 impulse response (:meth:`SceneRenderer.binaural_filter`, :mod:`avgs.acoustics.impulse_response`).
 By default (:class:`~avgs.config.SynthesisConfig`) a render is B's predicted ear magnitudes
-with the phase of the input through that filter, for any length, and
+with one phase that fast Griffin-Lim retrieves for their mid, for any length, and
 :meth:`SceneRenderer.stream` gives the same block by block; ``method="filter"`` is the
-convolution alone (what the explorer plays), ``phase="source"`` the paper's synthesis, and
-``phase_iterations`` refine either phase (:mod:`avgs.acoustics.synthesis`).
+convolution alone (what the explorer plays), ``phase="filter"`` the filter output's phase,
+``phase="source"`` the paper's synthesis (:mod:`avgs.acoustics.synthesis`).
 
 Bounded sound: the listener and the source are kept inside the scene's box
 (:attr:`SceneRenderer.bounds`, which holds its audio points, G, the training poses and the
@@ -62,7 +62,7 @@ import torch
 from avgs import dsp
 from avgs.data.frame import signed_direction
 from avgs.acoustics.impulse_response import TailShaper, convolve, impulse_response
-from avgs.acoustics.synthesis import Masks, ear_gains, ear_spectrogram, unit_phase, waveform
+from avgs.acoustics.synthesis import Masks, ear_gains, ear_spectrogram, mid_phase_waveform, unit_phase, waveform
 from avgs.checkpoint import config_of, load_checkpoint, stft_of
 from avgs.config import SynthesisConfig
 from avgs.data.frame import SceneFrame
@@ -448,10 +448,10 @@ class SceneRenderer:
     ) -> RenderResult:
         """Binaural ``[2, T]`` float32 of ``mono [T]`` (any length >= 1) heard at ``listener`` facing ``yaw`` degrees.
 
-        The waveform is made as ``synthesis`` says, by default :attr:`synthesis`: the input
-        convolved with the pose's binaural impulse response (:meth:`binaural_filter`), or the
-        predicted ear magnitudes with the source's phase and phase iterations
-        (:class:`avgs.config.SynthesisConfig`). With ``magnitudes=True`` the result also holds
+        The waveform is made as ``synthesis`` says, by default :attr:`synthesis`: the
+        predicted ear magnitudes with one phase retrieved for their mid, with the filter's
+        or the source's phase, or the input convolved with the pose's binaural impulse
+        response (:meth:`binaural_filter`; :class:`avgs.config.SynthesisConfig`). With ``magnitudes=True`` the result also holds
         the predicted ear magnitudes ``[2, F, N_t]`` (what AV-NeRF's MAGp scores).
 
         ``source`` (world) moves the source. Task rir: the input convolved (FFT) with the
@@ -515,6 +515,7 @@ class SceneRenderer:
         m32 = m.to(torch.float32)
         y = np.empty((2, x.size), dtype=np.float32)  # [2, T]
         mags, top = None, 0.0
+        mid = synthesis.method == "spectrogram" and synthesis.phase == "mid" and self.post_conv is None
         filtered = None  # [2, T] the input through the pose's filter, when the synthesis uses it
         if self.post_conv is None and (synthesis.method == "filter" or synthesis.phase == "filter"):
             h = self._impulse(m) if impulse is None else impulse
@@ -527,6 +528,14 @@ class SceneRenderer:
             pieces = self._pieces(x.size, m32, synthesis, whole=magnitudes)
         for lo, hi, start, stop in pieces:
             piece = torch.from_numpy(x[start:stop] / np.float32(scale)).to(self.device)  # [stop - start]
+            if mid:  # one retrieved phase for both ears (the default)
+                wave, ears = mid_phase_waveform(dsp.stft(piece[None], self.stft), m32, stop - start, self.stft,
+                                                synthesis, start // self.stft.hop_length)
+                if magnitudes:
+                    mags = np.ascontiguousarray((ears[0].double().cpu().numpy() * scale).astype(np.float32))
+                y[:, lo:hi] = wave[0, :, lo - start : hi - start].float().cpu().numpy()
+                top = max(top, _peak(y[:, lo:hi]))
+                continue
             if filtered is None:  # the source's phase
                 ears = ear_spectrogram(dsp.stft(piece[None], self.stft), m32, self.post_conv,
                                        start // self.stft.hop_length)  # [1, 2, F, N]
@@ -585,7 +594,7 @@ class SceneRenderer:
         n = dsp.n_frames(length, self.stft)
         window = -(-self.stft.n_fft // hop)  # frames one window overlaps on each side, plus one
         tail = 0 if masks.decay is None else tail_length(masks.decay, n)
-        margin = tail + window * (synthesis.phase_iterations + 2) + (CONTEXT_FRAMES if self.post_conv is not None else 0)
+        margin = tail + window * (synthesis.iterations + 2) + (CONTEXT_FRAMES if self.post_conv is not None else 0)
         block = RENDER_BLOCK_FRAMES
         if whole or n <= block + 2 * margin:
             yield 0, length, 0, length
@@ -603,13 +612,17 @@ class SceneRenderer:
 
     def stream(self, listener, yaw: float, source=None):
         """A stream for this pose: feed mono blocks of any size to ``process``, then ``flush()``;
-        the concatenated output equals :meth:`render` of the whole input (float rounding).
+        the concatenated output equals :meth:`render` of the whole input (float rounding),
+        ``latency`` samples behind at most.
 
-        With the default synthesis a :class:`avgs.streaming.BinauralStream`, with
-        ``method="filter"`` a :class:`avgs.acoustics.convolution.ConvolutionStream`. Phase
-        iterations and the source's phase need the whole signal: such renderers do not stream.
+        With the default synthesis (phase ``mid``) a :class:`avgs.mid_phase_stream.MidPhaseStream`
+        (0.43 s behind: the phase retrieval's reach), with the filter's phase and no iterations
+        a :class:`avgs.streaming.BinauralStream` (29 ms), with ``method="filter"`` a
+        :class:`avgs.acoustics.convolution.ConvolutionStream` (one block). Iterations from the
+        source's or the filter's phase need the whole signal: such renderers do not stream.
         """
         from avgs.acoustics.convolution import ConvolutionStream
+        from avgs.mid_phase_stream import MidPhaseStream
         from avgs.streaming import BinauralStream
 
         where = self.path or "this checkpoint"
@@ -623,11 +636,15 @@ class SceneRenderer:
             with self._lock, torch.inference_mode():
                 return ConvolutionStream(self._rir_pose(listener, yaw, source)[1])
         s = self.synthesis
-        if s.method == "spectrogram" and (s.phase != "filter" or s.phase_iterations > 0):
-            raise ValueError(f"{where}: a stream cannot do {s.phase_iterations} phase iterations from the {s.phase}'s "
+        if s.method == "spectrogram" and s.phase != "mid" and s.iterations > 0:
+            raise ValueError(f"{where}: a stream cannot do {s.iterations} phase iterations from the {s.phase}'s "
                              "phase (they need the whole signal); stream with SynthesisConfig() or method='filter'")
+        if s.method == "spectrogram" and s.phase == "source":
+            raise ValueError(f"{where}: the source's phase does not stream; stream with SynthesisConfig() or method='filter'")
         with self._lock, torch.inference_mode():
             m, *_ = self._masks(listener, yaw, source)
+            if s.method == "spectrogram" and s.phase == "mid":
+                return MidPhaseStream(m, self.stft, s)
             impulse = self._impulse(m)
             return ConvolutionStream(impulse) if s.method == "filter" else BinauralStream(m.to(torch.float32), impulse, self.stft)
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections import OrderedDict
 
 import torch
 from torch import nn
@@ -80,12 +81,12 @@ def tail_power(mono_mag: torch.Tensor, decay: torch.Tensor) -> torch.Tensor:
     n = mono_mag.shape[-1]
     power = mono_mag.square()  # [..., F, N]
     taps = tail_length(decay, n)
-    k = torch.arange(taps, device=mono_mag.device, dtype=mono_mag.dtype)  # [L]
-    # decay^k for k = 1 .. L-1, zero at k = 0 (the direct part is the mask's), as exp(k log w).
-    kernel = torch.exp(k * torch.log(decay)[:, None]) * (k > 0)  # [F, L]
     block = max(BLOCK_FRAMES, taps) if n > BLOCK_FRAMES else n
     size = 1 << (block + taps - 1).bit_length()  # >= block + taps: linear, not circular; a power of 2 is fast
-    kernel_spec = torch.fft.rfft(kernel, size)  # [F, size // 2 + 1]
+    if decay.requires_grad:  # training: through autograd
+        kernel_spec = _kernel_spectrum(decay, taps, size)
+    else:  # rendering: the decay is the scene's, the same for every pose
+        kernel_spec = _cached_kernel_spectrum(decay, taps, size)
     if block >= n:
         out = torch.fft.irfft(torch.fft.rfft(power, size) * kernel_spec, size)[..., :n]
         return out.clamp_min(0.0)  # FFT rounding can dip a hair below zero
@@ -94,6 +95,34 @@ def tail_power(mono_mag: torch.Tensor, decay: torch.Tensor) -> torch.Tensor:
         piece = power[..., start : start + block]
         out[..., start : start + size] += torch.fft.irfft(torch.fft.rfft(piece, size) * kernel_spec, size)
     return out[..., :n].clamp_min(0.0)
+
+
+def _kernel_spectrum(decay: torch.Tensor, taps: int, size: int) -> torch.Tensor:
+    """rfft [F, size // 2 + 1] of the kernel ``decay^k`` for k = 1 .. taps-1 (zero at k = 0: the
+    direct part is the mask's), as exp(k log w)."""
+    k = torch.arange(taps, device=decay.device, dtype=decay.dtype)  # [L]
+    kernel = torch.exp(k * torch.log(decay)[:, None]) * (k > 0)  # [F, L]
+    return torch.fft.rfft(kernel, size)
+
+
+KERNEL_CACHE = 8
+"Kernel spectra kept for rendering (one per scene decay, length and FFT size)."
+
+_kernels: "OrderedDict[tuple, torch.Tensor]" = OrderedDict()
+
+
+def _cached_kernel_spectrum(decay: torch.Tensor, taps: int, size: int) -> torch.Tensor:
+    """:func:`_kernel_spectrum` of a decay without autograd, cached by its values: a scene's
+    decay is the same for every pose it renders."""
+    key = (decay.detach().cpu().numpy().tobytes(), taps, size, decay.dtype, str(decay.device))
+    spec = _kernels.get(key)
+    if spec is None:
+        with torch.inference_mode(False):  # usable in and out of inference mode
+            spec = _kernel_spectrum(decay.detach().clone(), taps, size)
+        _kernels[key] = spec
+        while len(_kernels) > KERNEL_CACHE:
+            _kernels.popitem(last=False)
+    return spec
 
 
 def tail_power_recursive(mono_mag: torch.Tensor, decay: torch.Tensor, state: torch.Tensor | None = None):

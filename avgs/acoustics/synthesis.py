@@ -12,9 +12,10 @@ The paper's mask model, per frequency, broadcast over frames::
 
 With the reverberant tail (:mod:`avgs.acoustics.reverb_tail`) each ear adds decayed power
 of earlier frames: ``s_ear = sqrt((|S| g_ear)^2 + r_ear^2 P)``, and ``s_m`` is the mean of
-the two ears. The waveform is the iSTFT of the ear magnitudes with a phase (the source's
-here; the pose's filter's in :meth:`SceneRenderer.render <avgs.inference.SceneRenderer.render>`
-by default), refined by ``SynthesisConfig.phase_iterations`` of fast Griffin-Lim.
+the two ears. The waveform is the iSTFT of the ear magnitudes with a phase: by default
+(:func:`mid_phase_waveform`) one phase that fast Griffin-Lim retrieves for ``s_m`` and both
+ears share; the source's (:func:`binaural_waveform`, the paper's) or the pose's filter's, each
+refined per ear by ``SynthesisConfig.phase_iterations`` (:class:`~avgs.config.SynthesisConfig`).
 """
 
 from __future__ import annotations
@@ -24,9 +25,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from avgs import dsp
 from avgs.acoustics.reverb_tail import fill_phase, tail_power
 from avgs.config import STFT, STFTConfig, SynthesisConfig
+from avgs.phase_retrieval import frame_grid, griffin_lim, retrieve_phase
 
 
 @dataclass(frozen=True)
@@ -81,6 +82,8 @@ def ear_magnitudes(mono_mag: torch.Tensor, masks: Masks, power: torch.Tensor | N
 
 def _sqrt0(x: torch.Tensor) -> torch.Tensor:
     """sqrt(x) for x >= 0, exactly 0 at 0 (silence stays silent), with a finite gradient there."""
+    if not x.requires_grad:  # rendering: no gradient to guard
+        return x.clamp_min(0.0).sqrt_()
     tiny = torch.finfo(x.dtype).tiny
     return torch.where(x > tiny, torch.sqrt(x.clamp_min(tiny)), torch.zeros_like(x))
 
@@ -94,16 +97,43 @@ def unit_phase(spec):
     return np.where(size > 0, spec / np.maximum(size, np.finfo(size.dtype).tiny), 1.0)
 
 
-def source_phase(mono_stft: torch.Tensor, first_frame: int = 0, tail: bool = False) -> torch.Tensor:
+def source_phase(mono_stft: torch.Tensor, first_frame: int = 0, tail: bool = False,
+                 power: torch.Tensor | None = None) -> torch.Tensor:
     """Unit phasors of the source's STFT [..., F, N_t] (complex), for bins where it is silent: 1, or with
     a reverberant ``tail`` ringing on after the source stops, a fixed pseudo-random phase
-    (:func:`~avgs.acoustics.reverb_tail.fill_phase`; ``first_frame`` is the absolute index of frame 0)."""
-    mag = mono_stft.abs()
-    silent = torch.ones_like(mono_stft)
-    if tail and bool((mag == 0).any()):
-        fill = fill_phase(mag.shape[-2], first_frame, mag.shape[-1], mag.device)
-        silent = fill.to(mono_stft.dtype).expand_as(mono_stft)
-    return torch.where(mag > 0, mono_stft / mag.clamp_min(torch.finfo(mag.dtype).tiny), silent)
+    (:func:`~avgs.acoustics.reverb_tail.fill_phase`; ``first_frame`` is the absolute index of frame 0).
+    ``power``: ``|mono_stft|^2`` when already at hand."""
+    if power is None:
+        power = (mono_stft * mono_stft.conj()).real  # |S|^2, without abs()'s hypot
+    silent = power == 0
+    unit = mono_stft * power.clamp_min(torch.finfo(power.dtype).tiny).rsqrt()
+    if not bool(silent.any()):
+        return unit
+    fill = torch.ones_like(mono_stft)
+    if tail:
+        fill = fill_phase(power.shape[-2], first_frame, power.shape[-1], power.device).to(mono_stft.dtype).expand_as(mono_stft)
+    return torch.where(silent, fill, unit)
+
+
+START_FLOOR = 1e-3
+"Source bins this far below their frame's loudest (60 dB) start from the fill phase: their own is rounding noise."
+
+
+def start_phase(mono_stft: torch.Tensor, power: torch.Tensor, first_frame: int = 0, tail: bool = False) -> torch.Tensor:
+    """The phase retrieval's first phase [..., F, N_t]: the source's, blended into the fill phase
+    (:func:`source_phase`'s for silent bins) where the source is near silent in its frame.
+
+    The phase of a bin 60 dB or more below its frame's loudest is rounding noise of the
+    STFT, and depends on the input's scale; where the tail rings on, it would decide the
+    output. ``unit(S + START_FLOOR max_f |S| fill)`` keeps the source's phase where it is
+    defined, takes the fill phase where it is not, and changes continuously in between:
+    the output does not depend on the input's scale, nor on how it is cut into blocks.
+    ``power``: ``|mono_stft|^2``.
+    """
+    n_freq, n = power.shape[-2], power.shape[-1]
+    fill = fill_phase(n_freq, first_frame, n, power.device).to(mono_stft.dtype) if tail else torch.ones((), dtype=mono_stft.dtype)
+    floor = START_FLOOR * power.amax(dim=-2, keepdim=True).sqrt()  # [..., 1, N]
+    return source_phase(mono_stft + floor * fill, first_frame, tail)
 
 
 def ear_spectrogram(mono_stft: torch.Tensor, masks: Masks, post_conv=None, first_frame: int = 0,
@@ -139,7 +169,7 @@ def waveform(spec: torch.Tensor, length: int, stft: STFTConfig = STFT, synthesis
     its magnitudes restored by ``synthesis``'s phase iterations from its phase (None: the defaults;
     0 iterations is the plain iSTFT)."""
     synthesis = synthesis or SynthesisConfig()
-    return dsp.griffin_lim(spec, spec.abs(), length, synthesis.phase_iterations, synthesis.phase_momentum, stft)
+    return griffin_lim(spec, spec.abs(), length, synthesis.iterations, synthesis.phase_momentum, stft)
 
 
 def binaural_waveform(
@@ -148,3 +178,28 @@ def binaural_waveform(
 ) -> torch.Tensor:
     """:func:`waveform` of :func:`ear_spectrogram`: [B, 2, length] (channel 0 = left)."""
     return waveform(ear_spectrogram(mono_stft, masks, post_conv, phase=phase), length, stft, synthesis)
+
+
+def mid_phase_waveform(
+    mono_stft: torch.Tensor, masks: Masks, length: int, stft: STFTConfig = STFT, synthesis: SynthesisConfig | None = None,
+    first_frame: int = 0,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The default synthesis: (waveform [B, 2, length], ear magnitudes [B, 2, F, N_t]).
+
+    One phase for both ears: fast Griffin-Lim (``synthesis.iterations``; :mod:`avgs.phase_retrieval`)
+    retrieves a phase for the mid magnitudes ``s_m`` from the source's, and each ear's
+    magnitudes take it. The ears' magnitudes differ from ``s_m`` by slowly varying gains
+    per bin, so the shared phase is nearly as consistent for them as for ``s_m``: one
+    retrieval instead of two. Mask model only (no conv head). ``first_frame``: the absolute
+    index of frame 0 (:func:`source_phase`).
+    """
+    synthesis = synthesis or SynthesisConfig()
+    power = (mono_stft * mono_stft.conj()).real  # [B, F, N] |S|^2
+    s_m, s_l, s_r = ear_magnitudes(power.sqrt(), masks)  # [B, F, N] each
+    start = s_m * start_phase(mono_stft, power, first_frame, tail=masks.reverb is not None)  # [B, F, N]
+    phase = retrieve_phase(s_m.transpose(-1, -2).contiguous(), start.transpose(-1, -2).contiguous(), length,
+                           synthesis.iterations, synthesis.phase_momentum, stft)  # [B, N, F]
+    ears = torch.stack([s_l, s_r], dim=1)  # [B, 2, F, N]
+    grid = frame_grid(phase.shape[-2], stft, ears.dtype, str(ears.device))
+    spec = ears.transpose(-1, -2) * phase[:, None]  # [B, 2, N, F]
+    return grid.waveform(grid.synthesise(spec.contiguous()), length), ears
