@@ -59,8 +59,10 @@ class FrameGrid:
             correction = torch.where(envelope > 1e-12, interior / envelope.clamp_min(1e-12), torch.zeros(()))
             self.window = w.to(device=device, dtype=dtype)  # [n_fft]
             self._synthesis_window = (w.view(self.overlap, hop) / interior).to(device=device, dtype=dtype)  # [R, hop]
-            self._edge = (self.overlap - 1) * hop
             flat = correction.reshape(-1)
+            self._edge = (self.overlap - 1) * hop
+            if 2 * self._edge >= flat.numel():  # a few frames: every sample is near an end
+                self._edge = flat.numel()
             self._head = flat[: self._edge].to(device=device, dtype=dtype)
             self._tail = flat[-self._edge :].to(device=device, dtype=dtype)
 
@@ -83,7 +85,8 @@ class FrameGrid:
             out[..., q : q + n, :].addcmul_(frames[..., q, :], self._synthesis_window[q])
         out = out.view(*lead, -1)
         out[..., : self._edge] *= self._head
-        out[..., -self._edge :] *= self._tail
+        if self._edge < out.shape[-1]:
+            out[..., -self._edge :] *= self._tail
         return out
 
     def pad_ends(self, z: torch.Tensor, length: int) -> torch.Tensor:

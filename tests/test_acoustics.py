@@ -17,7 +17,7 @@ from avgs.acoustics.model import AVGSModel
 from avgs.acoustics.synthesis import Masks, binaural_waveform
 from avgs.acoustics.points import AudioPoints, alpha_dim, alpha_from_colors, alpha_from_features, parse_alpha_spec
 from avgs.acoustics.vicinity import nearest_indices, vicinity_size
-from avgs.config import AcousticConfig
+from avgs.config import AcousticConfig, SynthesisConfig
 from avgs.train.losses import magnitude_loss, volume_loss
 
 
@@ -287,8 +287,9 @@ def test_post_conv_with_a_zero_residual_is_the_plain_mask_path():
     with torch.no_grad():
         post.net[-1].weight.zero_()
         post.net[-1].bias.zero_()
-    plain = binaural_waveform(spec, Masks(mixture, difference), 9000)
-    conv = binaural_waveform(spec, Masks(mixture, difference), 9000, post_conv=post)
+    once = SynthesisConfig(phase="source")  # the magnitudes with the source's phase, inverted once
+    plain = binaural_waveform(spec, Masks(mixture, difference), 9000, synthesis=once)
+    conv = binaural_waveform(spec, Masks(mixture, difference), 9000, post_conv=post, synthesis=once)
     assert torch.isfinite(conv).all() and torch.allclose(conv, plain, atol=1e-5)
 
 

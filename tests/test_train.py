@@ -230,7 +230,7 @@ def test_render_command_resamples_and_downmixes(tmp_path, untrained_ckpt):
 
 
 def test_render_command_phase_iterations(tmp_path, untrained_ckpt):
-    """--phase source writes the source-phase synthesis; the default the predicted magnitudes with the filter's phase."""
+    """--phase source writes the source-phase synthesis; the default the predicted magnitudes with one retrieved phase."""
     from avgs.config import SynthesisConfig
 
     mono = np.random.default_rng(1).standard_normal(5000).astype(np.float32) * 0.1
@@ -244,6 +244,11 @@ def test_render_command_phase_iterations(tmp_path, untrained_ckpt):
     np.testing.assert_allclose(plain.T, ref.render((1, 1, 1.6), 45.0, mono).binaural, atol=1e-6)
     np.testing.assert_allclose(default.T, SceneRenderer.load(untrained_ckpt).render((1, 1, 1.6), 45.0, mono).binaural, atol=1e-6)
     assert not np.allclose(default, plain, atol=1e-4)
+    assert cli_main([*args, "--output", str(tmp_path / "four.wav"), "--phase-iterations", "4"]) == 0
+    four, _ = sf.read(tmp_path / "four.wav", always_2d=True, dtype="float32")
+    ref = SceneRenderer.load(untrained_ckpt, synthesis=SynthesisConfig(phase_iterations=4))
+    np.testing.assert_allclose(four.T, ref.render((1, 1, 1.6), 45.0, mono).binaural, atol=1e-6)
+    assert not np.allclose(four, default, atol=1e-4)
     for bad in (["--phase-iterations", "-1"],):
         assert cli_main([*args, "--output", str(tmp_path / "bad.wav"), *bad]) == 2
         assert not (tmp_path / "bad.wav").exists()

@@ -28,6 +28,7 @@ from __future__ import annotations
 import functools
 import math
 
+import scipy.fft
 import torch
 
 from avgs import dsp
@@ -173,7 +174,7 @@ def convolve(x: torch.Tensor, h: torch.Tensor, block: int = 1 << 17) -> torch.Te
     """
     t, n = x.shape[-1], h.shape[-1]
     block = max(block, n)
-    size = 1 << (min(block, t) + n - 1 - 1).bit_length()  # >= piece + n - 1: linear, not circular
+    size = scipy.fft.next_fast_len(min(block, t) + n - 1, real=True)  # >= piece + n - 1: linear, not circular
     h_spec = torch.fft.rfft(h, size)  # [C, size // 2 + 1]
     y = torch.zeros(h.shape[0], t, dtype=torch.result_type(x, h), device=x.device)
     for start in range(0, t, block):

@@ -37,7 +37,7 @@ from avgs.acoustics.points import AudioPoints
 from avgs.acoustics.rir_binauralizer import RIRBinauralizer
 from avgs.acoustics.synthesis import Masks
 from avgs.config import STFT, AcousticConfig, RIRConfig, STFTConfig
-from avgs.phase_retrieval import griffin_lim
+from avgs.phase_retrieval import frame_grid, griffin_lim
 from avgs.data.frame import signed_direction
 
 PHASE_SEED = 20240515
@@ -183,8 +183,18 @@ def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, p
     mag = mag.float()
     spec = mag * _noise_phase(mag.shape[-2], mag.shape[-1]).to(mag.device)  # [..., 2, F, N]
     its = iterations if phase == "griffin-lim" else 0
-    y = griffin_lim(spec, mag, length, its, momentum, stft).float()  # [..., 2, length]
     want = mag.square().sum((-2, -1))  # [..., 2]
-    got = dsp.magnitude(y, stft).square().sum((-2, -1))
+    n = mag.shape[-1]
+    if its == 0 and n == dsp.n_frames(length, stft) and stft.win_length == stft.n_fft and not stft.n_fft % stft.hop_length:
+        # the inverse STFT and the STFT of its waveform on one padded signal (frame-major; torch.istft's and
+        # torch.stft's to float rounding)
+        grid = frame_grid(n, stft, torch.float32, str(mag.device))
+        padded = grid.synthesise(spec.transpose(-1, -2).contiguous())  # [..., 2, padded samples]
+        y = grid.waveform(padded, length)
+        rebuilt = grid.analyse(grid.pad_ends(padded, length))  # [..., 2, N, F]
+    else:
+        y = griffin_lim(spec, mag, length, its, momentum, stft).float()  # [..., 2, length]
+        rebuilt = dsp.stft(y, stft)
+    got = (rebuilt * rebuilt.conj()).real.sum((-2, -1))  # [..., 2] the waveform's STFT energy
     gain = torch.where(got > 0, torch.sqrt(want / got.clamp_min(1e-30)), torch.zeros_like(got))
     return y * gain[..., None]

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 
 from avgs.commands.flags import field_help
-from avgs.config import SynthesisConfig
+from avgs.config import MID_PHASE_ITERATIONS, SynthesisConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,15 +32,16 @@ def add_synthesis_flags(parser: argparse.ArgumentParser, prefix: str = "") -> No
     d = SynthesisConfig()
     parser.add_argument("--synthesis", choices=("filter", "spectrogram"), default=d.method,
                         help=prefix + field_help(SynthesisConfig, "method") + f" Default {d.method}.")
-    parser.add_argument("--phase", choices=("filter", "source"), default=d.phase,
+    parser.add_argument("--phase", choices=("mid", "filter", "source"), default=d.phase,
                         help=prefix + field_help(SynthesisConfig, "phase") + f" Default {d.phase}.")
-    parser.add_argument("--phase-iterations", type=int, metavar="N", default=d.phase_iterations,
-                        help=prefix + field_help(SynthesisConfig, "phase_iterations") + f" Default {d.phase_iterations}.")
+    parser.add_argument("--phase-iterations", type=int, metavar="N", default=None,
+                        help=prefix + field_help(SynthesisConfig, "phase_iterations") +
+                        f" Default {MID_PHASE_ITERATIONS} for mid, 0 for the others.")
 
 
 def synthesis_of(args: argparse.Namespace) -> SynthesisConfig:
     """The :class:`SynthesisConfig` of ``--synthesis``, ``--phase`` and ``--phase-iterations``."""
-    if args.phase_iterations < 0:
+    if args.phase_iterations is not None and args.phase_iterations < 0:
         raise ValueError(f"--phase-iterations must be >= 0, got {args.phase_iterations}")
     return SynthesisConfig(method=args.synthesis, phase=args.phase, phase_iterations=args.phase_iterations)
 

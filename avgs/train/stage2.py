@@ -13,8 +13,7 @@ import numpy as np
 import torch
 
 from avgs.acoustics.model import AVGSModel
-from avgs.acoustics.impulse_response import TailShaper, filter_phase
-from avgs.acoustics.synthesis import binaural_waveform
+from avgs.acoustics.synthesis import binaural_waveform, mid_phase_waveform
 from avgs.config import TrainConfig
 from avgs.point_management import AudioPointManager
 from avgs.train.losses import magnitude_loss, total_loss, volume_loss
@@ -135,16 +134,16 @@ class Stage2Trainer:
         source = data.source.to(self.device)
         cached = self.model.source_context(source)
         post_conv = self.model.binauralizer.post_conv
-        reverb = self.model.binauralizer.reverb
-        tail = None if reverb is None else TailShaper(reverb.decay(), self.cfg.stft)  # the room as trained so far
+        length = data.mono.shape[-1]
         out = []
         for i in range(0, len(data), chunk):
             sl = slice(i, i + chunk)
             m = self.model.masks(data.listener[sl].to(self.device), data.theta[sl].to(self.device), source, cached)
             spec = data.mono_stft[sl].to(self.device)
-            # the phase of the input through each pose's filter, as render() takes it (the conv head: the source's)
-            phase = None if post_conv is not None else filter_phase(data.mono[sl], m, self.cfg.stft, tail)
-            out.append(binaural_waveform(spec, m, data.mono.shape[-1], self.cfg.stft, post_conv, phase=phase).cpu())
+            if post_conv is None:  # one phase retrieved for the mid, as render() does by default
+                out.append(mid_phase_waveform(spec, m, length, self.cfg.stft)[0].cpu())
+            else:  # the conv head: the source's phase, refined as render() refines it
+                out.append(binaural_waveform(spec, m, length, self.cfg.stft, post_conv).cpu())
         return torch.cat(out)
 
     def evaluate(self, data) -> dict:
