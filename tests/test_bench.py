@@ -35,7 +35,7 @@ def test_bench_quick_writes_the_report(tmp_path, capsys, one_source_ckpt):
     for png in ("latency.png", "speed_error.png", "points.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     results = json.loads((out / "results.json").read_text())
-    assert set(results["latency"]["cpu"]["stages"]) == {"vicinity", "field", "binauralizer", "impulse response", "synthesis"}
+    assert set(results["latency"]["cpu"]["stages"]) == {"vicinity", "field", "binauralizer", "synthesis"}  # no filter: mid phase
     assert set(results["latency"]["cpu"]["syntheses"]) == set(SYNTHESES)
     for label in SYNTHESES:  # each synthesis timed on the demo and scored on the bench's scene
         assert label in report
@@ -56,6 +56,19 @@ def test_headline_compares_avgs_with_the_simulator():
     ]
     text = headline(summarise([{"rows": [dict(r, scene="s") for r in rows]}]))
     assert "500x" in text and "simulator order 2" in text and "40x" in text
+    assert "eight phase iterations" not in text  # no synthesis rows in this run
+
+
+def test_headline_says_whether_the_default_synthesis_matches_eight_iterations():
+    ref = {"label": "AV-GS vicinity 15 %", "family": "AV-GS vicinity", "latency_ms": 5.0, "MAG": 0.120, "ENV": 0.05}
+    eight = [{"label": f"AV-GS 15 % {p} phase + 8 iterations", "family": "AV-GS synthesis", "latency_ms": 9.0, "MAG": m,
+              "ENV": 0.05} for p, m in (("filter", 0.121), ("source", 0.125))]
+    text = headline(summarise([{"rows": [dict(r, scene="s") for r in [ref, *eight]]}]))
+    assert "is at least as good in MAG as eight phase iterations per ear" in text
+    assert "filter phase + 8 iterations 0.1210 / 0.0500 in 9.00 ms" in text
+    worse = dict(ref, MAG=0.1215)
+    text = headline(summarise([{"rows": [dict(r, scene="s") for r in [worse, *eight]]}]))
+    assert "is not as good in MAG as eight phase iterations" in text
 
 
 @pytest.mark.skipif(simulator_available() is not None, reason="scene generator not installed")

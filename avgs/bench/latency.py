@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from avgs.bench.timing import Stopwatch, Timing, time_calls
-from avgs.config import SynthesisConfig
+from avgs.config import MID_PHASE_ITERATIONS, SynthesisConfig
 
 def _sync(device) -> None:
     if torch.device(device).type == "cuda":
@@ -52,11 +52,12 @@ def time_render(render, poses, mono, repeats: int, warmup: int = 3, device="cpu"
 
 SYNTHESES = {
     "filter": SynthesisConfig(method="filter"),
-    "filter phase (default)": SynthesisConfig(),
-    "filter phase + 2 iterations": SynthesisConfig(phase_iterations=2),
-    "filter phase + 8 iterations": SynthesisConfig(phase_iterations=8),
+    f"mid phase, {MID_PHASE_ITERATIONS} iterations (default)": SynthesisConfig(),
+    "mid phase, 8 iterations": SynthesisConfig(phase_iterations=8),
+    "mid phase, 16 iterations": SynthesisConfig(phase_iterations=16),
+    "filter phase": SynthesisConfig(phase="filter"),
+    "filter phase + 8 iterations": SynthesisConfig(phase="filter", phase_iterations=8),
     "source phase": SynthesisConfig(phase="source"),
-    "source phase + 2 iterations": SynthesisConfig(phase="source", phase_iterations=2),
     "source phase + 8 iterations": SynthesisConfig(phase="source", phase_iterations=8),
 }
 "The syntheses `avgs bench` compares (:class:`avgs.config.SynthesisConfig`): time on the demo, error on the bench's scenes."
@@ -88,8 +89,10 @@ def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
                 c_l = run("field", lambda: model.context_at(lis, idx, cache))
                 ctx = torch.cat([c_s[None], c_l], dim=-1)
             masks = run("binauralizer", lambda: model.binauralizer(lis[:, :2], theta, ctx, cache.frequency))
-            h = run("impulse response", lambda: renderer._impulse(masks))
-            # the convolution, the STFTs, the predicted magnitudes with their phase, the inverse STFT
+            h = None
+            if renderer.synthesis.method == "filter" or renderer.synthesis.phase == "filter":
+                h = run("impulse response", lambda: renderer._impulse(masks))
+            # the STFTs, the predicted magnitudes, their phase (retrieved, or the filter's), the inverse STFT
             run("synthesis", lambda: renderer._synthesise(mono, 1.0, masks, renderer.synthesis, impulse=h))
     return sw.timings()
 
