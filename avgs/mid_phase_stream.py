@@ -31,6 +31,7 @@ from avgs.acoustics.reverb_tail import tail_power_recursive
 from avgs.acoustics.synthesis import Masks, ear_magnitudes, mid_phase_waveform, start_phase
 from avgs.config import STFT, STFTConfig, SynthesisConfig
 from avgs.phase_retrieval import _iterate, frame_grid
+from avgs.streaming import one_pose
 
 BLOCK_FRAMES = 16
 "Frames made final per phase retrieval (93 ms at AV-NeRF's hop): shorter adds work, longer adds delay."
@@ -50,7 +51,7 @@ class MidPhaseStream:
         if block_frames < 1:
             raise ValueError(f"block_frames must be >= 1, got {block_frames}")
         self.stft = stft
-        self.masks = self._checked(masks)
+        self.masks = one_pose(masks, stft, torch.float32)
         "The pose's masks in float32, on the CPU (what the one-shot render uses)."
         n, hop = stft.n_fft, stft.hop_length
         self._hop, self._pad = hop, n // 2
@@ -73,23 +74,11 @@ class MidPhaseStream:
         self._started = False
         self._done = False
 
-    def _checked(self, masks: Masks) -> Masks:
-        shapes = [tuple(masks.mixture.shape), tuple(masks.difference.shape)]
-        if masks.reverb is not None:
-            shapes += [tuple(masks.reverb.shape[::2]), (1, *masks.decay.shape)]
-        n_freq = self.stft.n_freq
-        if any(shape != (1, n_freq) for shape in shapes):
-            raise ValueError(f"a stream takes the masks of one pose, [1, {n_freq}] for n_fft {self.stft.n_fft}; got {shapes}")
-        return masks.to(torch.float32, "cpu")
-
     def set_pose(self, masks: Masks, impulse=None) -> None:
         """Go on with another pose of the same scene (e.g. from another thread, between blocks):
         frames made from now on take its magnitudes (the phase retrieval and the overlap-add
         blend the change over a few frames). ``impulse`` is not used (the filter streams' argument)."""
-        masks = self._checked(masks)
-        if (masks.decay is None) != (self.masks.decay is None):
-            raise ValueError("set_pose: the new masks must come from the same scene (with or without a tail)")
-        self.masks = masks
+        self.masks = one_pose(masks, self.stft, torch.float32, like=self.masks)
 
     @property
     def latency(self) -> int:

@@ -38,6 +38,19 @@ def _hann(n: int) -> np.ndarray:
     return 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(n) / n)
 
 
+def one_pose(masks: Masks, stft: STFTConfig, dtype: torch.dtype, like: Masks | None = None) -> Masks:
+    """``masks`` of one pose ([1, F] each) in ``dtype`` on the CPU, as a stream keeps them; ValueError
+    for a batch, another STFT's bins, or (given the stream's current masks ``like``) another scene's."""
+    shapes = [tuple(masks.mixture.shape), tuple(masks.difference.shape)]
+    if masks.reverb is not None:
+        shapes += [tuple(masks.reverb.shape[::2]), (1, *masks.decay.shape)]
+    if any(shape != (1, stft.n_freq) for shape in shapes):
+        raise ValueError(f"a stream takes the masks of one pose, [1, {stft.n_freq}] for n_fft {stft.n_fft}; got {shapes}")
+    if like is not None and (masks.decay is None) != (like.decay is None):
+        raise ValueError("set_pose: the new masks must come from the same scene (with or without a tail)")
+    return masks.to(dtype, "cpu")
+
+
 class BinauralStream:
     """Binauralise a mono stream block by block with one pose: its :class:`Masks` ([1, F]) and its
     binaural impulse response ``[2, L]`` (:meth:`SceneRenderer.binaural_filter
@@ -69,13 +82,7 @@ class BinauralStream:
         self._done = False
 
     def _checked(self, masks: Masks) -> Masks:
-        shapes = [tuple(masks.mixture.shape), tuple(masks.difference.shape)]
-        if masks.reverb is not None:
-            shapes += [tuple(masks.reverb.shape[::2]), (1, *masks.decay.shape)]
-        n_freq = self.stft.n_freq
-        if any(shape != (1, n_freq) for shape in shapes):
-            raise ValueError(f"a stream takes the masks of one pose, [1, {n_freq}] for n_fft {self.stft.n_fft}; got {shapes}")
-        return masks.to(torch.float64, "cpu")
+        return one_pose(masks, self.stft, torch.float64)
 
     def set_pose(self, masks: Masks, impulse: np.ndarray) -> None:
         """Go on with another pose of the same scene (e.g. from another thread, between blocks).
@@ -84,9 +91,7 @@ class BinauralStream:
         magnitudes at the next STFT frame (whose overlap-add fades them in over one window).
         The tail's power needs no reset: it depends on the source and the room, not the pose.
         """
-        masks = self._checked(masks)
-        if (masks.decay is None) != (self.masks.decay is None):
-            raise ValueError("set_pose: the new masks must come from the same scene (with or without a tail)")
+        masks = one_pose(masks, self.stft, torch.float64, like=self.masks)
         self._filter.convolver.set_impulse(np.asarray(impulse, dtype=np.float32))
         self.masks = masks
 

@@ -4,6 +4,7 @@
   frames), its own data root.
 - ``quick_presets``: one ``--quick`` scene of every preset in one data root whose
   position.json already held a foreign entry (``"real_scene"``) before generation.
+- ``tail_renderer``: an untrained scene whose reverberant tail is loud and pose-dependent.
 """
 
 from __future__ import annotations
@@ -73,3 +74,24 @@ def quick_presets(tmp_path_factory) -> dict[str, Path]:
         preset: write_scene(root, f"{preset}_q", SynthConfig.quick_config(preset, seed=3, workers=1), progress=False).scene_dir
         for preset in PRESETS
     }
+
+
+@pytest.fixture(scope="session")
+def tail_renderer():
+    """A renderer whose tail is loud and pose-dependent (random head weights, RT60 0.2-0.8 s)."""
+    import numpy as np
+    import torch
+
+    from avgs.checkpoint import untrained_checkpoint
+    from avgs.data.frame import SceneFrame
+    from avgs.inference import SceneRenderer
+
+    room = np.array([[0.0, 0.0, 0.0], [6.0, 4.0, 3.0]])
+    pts = np.random.default_rng(0).uniform(room[0], room[1], size=(600, 3))
+    ckpt = untrained_checkpoint(pts, np.array([4.5, 2.5, 1.2]), frame=SceneFrame(room.mean(0), 1 / 3), seed=3)
+    state = ckpt["binauralizer"]
+    g = torch.Generator().manual_seed(5)
+    state["reverb.head.weight"] = torch.randn(state["reverb.head.weight"].shape, generator=g) * 0.3
+    state["reverb.head.bias"] = torch.full((2,), -0.5)
+    state["reverb.log_rt60"] = torch.log(torch.linspace(0.2, 0.8, 257))
+    return SceneRenderer(ckpt)

@@ -9,10 +9,7 @@ import torch
 
 from avgs import dsp
 from avgs.acoustics.synthesis import Masks, mid_phase_waveform
-from avgs.checkpoint import untrained_checkpoint
 from avgs.config import MID_PHASE_ITERATIONS, SynthesisConfig
-from avgs.data.frame import SceneFrame
-from avgs.inference import SceneRenderer
 from avgs.mid_phase_stream import MidPhaseStream
 
 F = dsp.STFT.n_freq
@@ -34,20 +31,6 @@ def test_a_gain_only_pose_gives_the_gained_input_back():
     assert torch.allclose(y[0, 1], 0.6 * x, atol=2e-3 * float(x.abs().max()))
 
 
-@pytest.fixture(scope="module")
-def reverberant():
-    """A renderer with a loud, pose-dependent tail (RT60 0.2-0.8 s), as tests/test_reverb_tail.py makes."""
-    room = np.array([[0.0, 0.0, 0.0], [6.0, 4.0, 3.0]])
-    pts = np.random.default_rng(0).uniform(room[0], room[1], size=(600, 3))
-    ckpt = untrained_checkpoint(pts, np.array([4.5, 2.5, 1.2]), frame=SceneFrame(room.mean(0), 1 / 3), seed=3)
-    state = ckpt["binauralizer"]
-    g = torch.Generator().manual_seed(5)
-    state["reverb.head.weight"] = torch.randn(state["reverb.head.weight"].shape, generator=g) * 0.3
-    state["reverb.head.bias"] = torch.full((2,), -0.5)
-    state["reverb.log_rt60"] = torch.log(torch.linspace(0.2, 0.8, F))
-    return SceneRenderer(ckpt)
-
-
 def _speech_like(n, seed=0):
     """Noise bursts with gaps: a tail rings on in the gaps, where the source's phase is no guide."""
     x = _noise(n, seed)
@@ -62,13 +45,13 @@ def _off_target(renderer, synthesis, x, pose=((2.0, 1.0, 1.6), 45.0)):
     return float(np.linalg.norm(got - out.magnitudes) / np.linalg.norm(out.magnitudes))
 
 
-def test_the_retrieved_phase_lands_nearer_the_predicted_magnitudes(reverberant):
+def test_the_retrieved_phase_lands_nearer_the_predicted_magnitudes(tail_renderer):
     """The retrieval brings the waveform's own magnitudes towards B's, more with more
     iterations, and nearer than the filter's or the source's phase. (Against eight
     iterations per ear, on trained scenes and their ground truth: docs/results.md#synthesis;
     this scene's two ears have unrelated tails, the least favourable case for one phase.)"""
     x = _speech_like(22050)
-    errors = {name: _off_target(reverberant, s, x) for name, s in {
+    errors = {name: _off_target(tail_renderer, s, x) for name, s in {
         "filter": SynthesisConfig(phase="filter"),
         "source": SynthesisConfig(phase="source"),
         "mid 0": SynthesisConfig(phase_iterations=0),  # the start: the source's phase (the fill phase where silent)
@@ -101,21 +84,21 @@ def _streamed(stream, x, sizes_seed=1, top=3000):
 
 
 @pytest.mark.parametrize("length", [1, 200, 300, 22050, 3 * 22050 + 17])
-def test_blocks_of_any_size_give_the_render(reverberant, length):
+def test_blocks_of_any_size_give_the_render(tail_renderer, length):
     """Each block's phase is retrieved with the iterations' reach on both sides: in exact
     arithmetic the same waveform as one pass over the whole input. In float32 the
     iterations carry rounding along, so the bound is the render's own distance from the
     same synthesis in float64."""
     x = _speech_like(length, seed=length)
     pose = ((2.0, 1.0, 1.6), 45.0)
-    one_shot = reverberant.render(*pose, x).binaural
-    m = reverberant._masks(*pose, None)[0]
+    one_shot = tail_renderer.render(*pose, x).binaural
+    m = tail_renderer._masks(*pose, None)[0]
     with torch.inference_mode():
         exact, _ = mid_phase_waveform(dsp.stft(torch.from_numpy(x.astype(np.float64))[None]), m.to(torch.float64), length)
     peak = max(1e-6, float(np.max(np.abs(one_shot))))
     rounding = float(np.max(np.abs(one_shot - exact[0].numpy()))) + 1e-6 * peak
     assert rounding < 1e-3 * peak
-    y = _streamed(reverberant.stream(*pose), x)
+    y = _streamed(tail_renderer.stream(*pose), x)
     assert y.shape == one_shot.shape
     assert np.max(np.abs(y - one_shot)) <= 3 * rounding
     for block_frames in (1, 5, 40):  # the cut between blocks leaves no trace

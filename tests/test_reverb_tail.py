@@ -11,10 +11,7 @@ import torch
 from avgs import dsp
 from avgs.acoustics.reverb_tail import BLOCK_FRAMES, ReverbTail, decay_per_frame, tail_power, tail_power_recursive
 from avgs.acoustics.synthesis import Masks, binaural_waveform, ear_magnitudes
-from avgs.checkpoint import untrained_checkpoint
 from avgs.config import STFT, SynthesisConfig, TrainConfig
-from avgs.data.frame import SceneFrame
-from avgs.inference import SceneRenderer
 
 
 HOP_S = STFT.hop_length / STFT.sample_rate
@@ -124,20 +121,6 @@ def test_rt60_and_gains_are_learned_from_a_known_decay():
 
 
 # -- the renderer ------------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def tail_renderer():
-    """A renderer whose tail is loud and pose-dependent (random head weights, RT60 0.2-0.8 s)."""
-    room = np.array([[0.0, 0.0, 0.0], [6.0, 4.0, 3.0]])
-    pts = np.random.default_rng(0).uniform(room[0], room[1], size=(600, 3))
-    ckpt = untrained_checkpoint(pts, np.array([4.5, 2.5, 1.2]), frame=SceneFrame(room.mean(0), 1 / 3), seed=3)
-    state = ckpt["binauralizer"]
-    g = torch.Generator().manual_seed(5)
-    state["reverb.head.weight"] = torch.randn(state["reverb.head.weight"].shape, generator=g) * 0.3
-    state["reverb.head.bias"] = torch.full((2,), -0.5)
-    state["reverb.log_rt60"] = torch.log(torch.linspace(0.2, 0.8, 257))
-    return SceneRenderer(ckpt)
 
 
 def test_renderer_reports_the_tail(tail_renderer):
