@@ -228,32 +228,38 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
                 L += ["", f"The same renders with 1 torch thread ({dev}): median {t['median_ms']:.2f} ms, p95 {t['p95_ms']:.2f} ms "
                       "(the per-pose work is many small operations; when other processes share the two cores, "
                       "two threads wait on each other)."]
-        L += ["", "The cached render against the same model code without caches, side by side in this run (same poses, same output to float rounding):", ""]
         rows = []
         for dev, d in lat.items():
             now = d["render"]["median_ms"]
             for name, t in d.get("paths", {}).items():
                 rows.append([dev, name, _f(t["median_ms"], "{:.2f}"), _f(t["p95_ms"], "{:.2f}"), f"{t['median_ms'] / now:.1f}x",
                              _f(t["max_abs_diff"], "{:.1e}")])
-            rows.append([dev, "**cached (render)**", f"**{now:.2f}**", _f(d["render"]["p95_ms"], "{:.2f}"), "1.0x", "0"])
-        L += _table(["device", "path", "median ms", "p95 ms", "time vs cached", "max abs diff"], rows)
-        L += ["", "Each synthesis (`--synthesis`, `--phase`, `--phase-iterations`), the same poses; their error on "
-                  "the bench's scenes is in the speed-against-error table:", ""]
+            if d.get("paths"):
+                rows.append([dev, "**cached (render)**", f"**{now:.2f}**", _f(d["render"]["p95_ms"], "{:.2f}"), "1.0x", "0"])
+        if rows:
+            L += ["", "The cached render against the same model code without caches, side by side in this run (same poses, "
+                      "same output to float rounding):", ""]
+            L += _table(["device", "path", "median ms", "p95 ms", "time vs cached", "max abs diff"], rows)
         rows = [[dev, label, _f(t["median_ms"], "{:.2f}"), _f(t["p95_ms"], "{:.2f}"),
                  f"{t['median_ms'] / d['render']['median_ms']:.2f}x"]
                 for dev, d in lat.items() for label, t in d.get("syntheses", {}).items()]
-        L += _table(["device", "synthesis", "median ms", "p95 ms", "time vs default"], rows)
-        L += ["", "Long inputs (one call, any length: the masks are time-invariant):", ""]
+        if rows:  # a binaural-task checkpoint (a source-aware one's render is its convolution)
+            L += ["", "Each synthesis (`--synthesis`, `--phase`, `--phase-iterations`), the same poses; their error on "
+                      "the bench's scenes is in the speed-against-error table:", ""]
+            L += _table(["device", "synthesis", "median ms", "p95 ms", "time vs default"], rows)
         rows = [[dev, f"{s} s", _f(t["median_ms"], "{:.1f}"), f"{t['realtime_factor']:.0f}x"] for dev, d in lat.items()
                 for s, t in d.get("long", {}).items()]
-        L += _table(["device", "audio", "ms (median)", "faster than real time"], rows)
-        L += ["", "Reduced precision (networks in the given dtype; error: max |diff| vs float32, input peak 1):", ""]
+        if rows:
+            L += ["", "Long inputs (one call, any length: the masks are time-invariant):", ""]
+            L += _table(["device", "audio", "ms (median)", "faster than real time"], rows)
         rows = []
         for dev, d in lat.items():
             for name, t in d.get("precision", {}).items():
                 rows.append([dev, name, t.get("error") or _f(t["median_ms"], "{:.2f}"), _f(t.get("max_abs_diff"), "{:.1e}"),
                              "-" if "error" in t else f"{t['median_ms'] / d['render']['median_ms']:.2f}x"])
-        L += _table(["device", "dtype", "median ms", "max abs diff", "time vs float32"], rows)
+        if rows:
+            L += ["", "Reduced precision (networks in the given dtype; error: max |diff| vs float32, input peak 1):", ""]
+            L += _table(["device", "dtype", "median ms", "max abs diff", "time vs float32"], rows)
         L += ["", "![latency](latency.png)", ""]
     else:
         L += ["(not run)", ""]
