@@ -616,7 +616,7 @@ class SceneRenderer:
         ``latency`` samples behind at most.
 
         With the default synthesis (phase ``mid``) a :class:`avgs.mid_phase_stream.MidPhaseStream`
-        (0.43 s behind: the phase retrieval's reach), with the filter's phase and no iterations
+        (0.44 s behind: the phase retrieval's reach), with the filter's phase and no iterations
         a :class:`avgs.streaming.BinauralStream` (29 ms), with ``method="filter"`` a
         :class:`avgs.acoustics.convolution.ConvolutionStream` (one block). Iterations from the
         source's or the filter's phase need the whole signal: such renderers do not stream.

@@ -13,9 +13,10 @@ same waveform from blocks of any size:
    ``block_frames`` frames the phase is retrieved on them and that margin on both sides,
    and their output is final.
 
-So the concatenated output equals ``render(...).binaural`` to float rounding, and lags the
-input by at most :attr:`MidPhaseStream.latency` samples: the margin and one block, about
-0.43 s with the default 12 iterations. Where that is too long (an interactive player),
+So the concatenated output equals ``render(...).binaural`` (to float32 rounding, which the
+iterations carry along: within a few times the render's own distance from float64), and
+lags the input by at most :attr:`MidPhaseStream.latency` samples: the margin and one block,
+0.44 s with the default 12 iterations. Where that is too long (an interactive player),
 the pose's filter streams with no more than a convolution block of delay
 (``SynthesisConfig(method="filter")``, what the explorer plays) and the filter's phase
 with 29 ms (:class:`avgs.streaming.BinauralStream`).
@@ -30,7 +31,7 @@ from avgs import dsp
 from avgs.acoustics.reverb_tail import tail_power_recursive
 from avgs.acoustics.synthesis import Masks, ear_magnitudes, mid_phase_waveform, start_phase
 from avgs.config import STFT, STFTConfig, SynthesisConfig
-from avgs.phase_retrieval import _iterate, frame_grid
+from avgs.phase_retrieval import frame_grid, retrieve_phase
 from avgs.streaming import one_pose
 
 BLOCK_FRAMES = 16
@@ -115,8 +116,9 @@ class MidPhaseStream:
         piece_len = (b - a - 1) * hop if length is None else length - a * hop  # centred frames a .. b-1
         lo, hi = a - self._f0, b - self._f0
         mid, ears = self._mid[lo:hi], self._ears[:, lo:hi]
+        phase = retrieve_phase(mid, self._start[lo:hi], piece_len, self._iterations, self.synthesis.phase_momentum,
+                               self.stft)  # [b - a, F]
         grid = frame_grid(b - a, self.stft)
-        _, phase = _iterate(grid, self._start[lo:hi], mid, piece_len, self._iterations, self.synthesis.phase_momentum)
         y = grid.waveform(grid.synthesise((ears * phase).contiguous()), piece_len)  # [2, piece_len]
         out_hi = e * hop if length is None else length
         return y[:, s * hop - a * hop : out_hi - a * hop].numpy()
