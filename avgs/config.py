@@ -349,7 +349,7 @@ class SynthesisConfig:
     phase: Literal["mid", "filter", "source"] = "mid"
     "With method spectrogram: one phase retrieved for the mid magnitudes (both ears), the filter output's, or the source's."
     phase_iterations: int | None = None
-    "With method spectrogram: fast Griffin-Lim iterations (None: MID_PHASE_ITERATIONS for mid, 0 for the others)."
+    "With method spectrogram: fast Griffin-Lim iterations (None: the phase's own, MID_PHASE_ITERATIONS for mid, 0 else)."
     phase_momentum: float = 0.99
     "Momentum of fast Griffin-Lim (0 is the original Griffin-Lim)."
 

@@ -35,8 +35,8 @@ def add_synthesis_flags(parser: argparse.ArgumentParser, prefix: str = "") -> No
     parser.add_argument("--phase", choices=("mid", "filter", "source"), default=d.phase,
                         help=prefix + field_help(SynthesisConfig, "phase") + f" Default {d.phase}.")
     parser.add_argument("--phase-iterations", type=int, metavar="N", default=None,
-                        help=prefix + field_help(SynthesisConfig, "phase_iterations") +
-                        f" Default {MID_PHASE_ITERATIONS} for mid, 0 for the others.")
+                        help=prefix + "With method spectrogram: fast Griffin-Lim iterations. "
+                        f"Default {MID_PHASE_ITERATIONS} for mid, 0 for the others.")
 
 
 def synthesis_of(args: argparse.Namespace) -> SynthesisConfig:
