@@ -204,3 +204,18 @@ def test_killed_runs_resume_bit_identically(quick_scene, tmp_path):
     assert_same_model(final, ref)
     assert [r["iteration"] for r in final["history"] if r.get("stage") == "resume"] == resumed_from
     assert no_temporaries(out.parent) == []  # a save cut short leaves nothing behind once training went on
+
+
+def test_resume_refuses_a_checkpoint_without_the_tasks_training_state(one_source_ckpt, tmp_path):
+    from avgs.checkpoint import save_checkpoint, untrained_checkpoint
+    from avgs.config import TrainConfig
+    from avgs.train.pipeline import resume_from
+
+    bare = tmp_path / "bare.ckpt"
+    save_checkpoint(untrained_checkpoint(torch.rand(50, 3) * 2 - 1, torch.zeros(3), seed=0), bare)
+    with pytest.raises(ValueError, match="bare.ckpt: holds no training state to resume from"):
+        resume_from(bare, TrainConfig(), tmp_path / "log.jsonl")
+    with pytest.raises(ValueError, match="holds no RIR training state to resume from"):
+        resume_from(one_source_ckpt, TrainConfig(), tmp_path / "log.jsonl", task="rir")  # a binaural-task run
+    resumed, cfg, log, points, _ = resume_from(one_source_ckpt, TrainConfig(), tmp_path / "log.jsonl")
+    assert cfg.acoustic.iterations == TrainConfig().acoustic.iterations and points.num_points == len(resumed["audio_points"]["X"])

@@ -139,6 +139,23 @@ def _train_stage1_logged(scene_dir: Path, cfg: TrainConfig, progress: bool, sink
     return gaussians, stats, history
 
 
+def resume_from(out: Path, cfg: TrainConfig, log_path: Path, task: str = "binaural"):
+    """What ``--resume`` continues from the checkpoint ``out`` of ``task``: (the checkpoint, its
+    stored configuration with this run's iterations, intervals and device, its log continued,
+    its audio points, its G or None). ValueError when ``out`` holds no training state of ``task``."""
+    resumed = load_checkpoint(out)
+    if resumed.get("train_state") is None or resumed.get("task", "binaural") != task:
+        what = "training" if task == "binaural" else f"{task.upper()} training"
+        raise ValueError(f"{out}: holds no {what} state to resume from")
+    stored = config_of(resumed)
+    stored.acoustic.iterations = cfg.acoustic.iterations
+    stored.checkpoint_every, stored.eval_every, stored.log_every = cfg.checkpoint_every, cfg.eval_every, cfg.log_every
+    stored.device = cfg.device
+    pts = resumed["audio_points"]
+    return (resumed, stored, JsonLinesLog(log_path, resumed["history"]), AudioPoints(pts["X"], pts["alpha"]),
+            resumed.get("gaussians"))
+
+
 def _bounds_world(scene, X: torch.Tensor, gaussians: dict | None) -> np.ndarray:
     """Box [2, 3] (world) around the audio points, G, the listener poses and the source."""
     parts = [X.detach().cpu().numpy().reshape(-1, 3), scene.source[None]]
@@ -183,18 +200,7 @@ def train_scene(
 
     resumed = None
     if resume and out.is_file():
-        resumed = load_checkpoint(out)
-        if resumed.get("train_state") is None:
-            raise ValueError(f"{out}: holds no training state to resume from")
-        stored = config_of(resumed)
-        stored.acoustic.iterations = cfg.acoustic.iterations
-        stored.checkpoint_every, stored.eval_every, stored.log_every = cfg.checkpoint_every, cfg.eval_every, cfg.log_every
-        stored.device = cfg.device
-        cfg = stored
-        log = JsonLinesLog(log_path, resumed["history"])
-        pts = resumed["audio_points"]
-        points = AudioPoints(pts["X"], pts["alpha"])
-        gaussians = resumed.get("gaussians")
+        resumed, cfg, log, points, gaussians = resume_from(out, cfg, log_path)
     else:
         log = JsonLinesLog(log_path)
         t0 = time.perf_counter()

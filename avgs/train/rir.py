@@ -35,7 +35,7 @@ import torch
 from avgs import dsp
 from avgs.acoustics.points import AudioPoints
 from avgs.acoustics.rir_model import RIRModel, response_waveform, silenced_magnitudes
-from avgs.checkpoint import build_checkpoint, config_of, load_checkpoint, outline_from_metadata, save_checkpoint
+from avgs.checkpoint import build_checkpoint, outline_from_metadata, save_checkpoint
 from avgs.config import TrainConfig
 from avgs.train.logging import JsonLinesLog, log_paths, plot_curves
 from avgs.train.stage2 import Stage2Trainer
@@ -271,7 +271,7 @@ def train_rir(
     from tqdm.auto import tqdm
 
     from avgs.data.rwavs import RWAVSScene
-    from avgs.train.pipeline import _stage1
+    from avgs.train.pipeline import _stage1, resume_from
     from avgs.train.stage1 import stage1_path
 
     cfg = copy.deepcopy(cfg or TrainConfig())
@@ -288,18 +288,7 @@ def train_rir(
 
     resumed = None
     if resume and out.is_file():
-        resumed = load_checkpoint(out)
-        if resumed.get("train_state") is None or resumed.get("task", "binaural") != TASK:
-            raise ValueError(f"{out}: holds no RIR training state to resume from")
-        stored = config_of(resumed)
-        stored.acoustic.iterations = cfg.acoustic.iterations
-        stored.checkpoint_every, stored.eval_every, stored.log_every = cfg.checkpoint_every, cfg.eval_every, cfg.log_every
-        stored.device = cfg.device
-        cfg = stored
-        log = JsonLinesLog(log_path, resumed["history"])
-        pts = resumed["audio_points"]
-        points = AudioPoints(pts["X"], pts["alpha"])
-        gaussians = resumed.get("gaussians")
+        resumed, cfg, log, points, gaussians = resume_from(out, cfg, log_path, TASK)
     else:
         cfg.rir.length = int(rir_scene.length)
         cfg.rir.frames = dsp.n_frames(cfg.rir.length, cfg.stft)
