@@ -29,9 +29,9 @@ import torch
 
 from avgs import dsp
 from avgs.acoustics.reverb_tail import tail_power_recursive
-from avgs.acoustics.synthesis import Masks, ear_magnitudes, mid_phase_waveform, start_phase
+from avgs.acoustics.synthesis import Masks, mid_phase_parts, mid_phase_waveform, shared_phase_waveform
 from avgs.config import STFT, STFTConfig, SynthesisConfig
-from avgs.phase_retrieval import frame_grid, retrieve_phase
+from avgs.phase_retrieval import FrameGrid, retrieve_phase
 from avgs.streaming import one_pose
 
 BLOCK_FRAMES = 16
@@ -44,7 +44,7 @@ class MidPhaseStream:
 
     def __init__(self, masks: Masks, stft: STFTConfig = STFT, synthesis: SynthesisConfig | None = None,
                  block_frames: int = BLOCK_FRAMES):
-        if stft.win_length != stft.n_fft or stft.n_fft % stft.hop_length:
+        if not FrameGrid.covers(stft):
             raise ValueError(f"streaming needs win_length == n_fft and a hop dividing it, got {stft}")
         self.synthesis = synthesis or SynthesisConfig()
         if self.synthesis.phase != "mid" or self.synthesis.method != "spectrogram":
@@ -96,16 +96,13 @@ class MidPhaseStream:
         frames = torch.from_numpy(self._x[t0 * hop - self._x0 : (t1 - 1) * hop + n - self._x0])
         spec = torch.fft.rfft(frames.unfold(0, n, hop) * self._window).T[None]  # [1, F, m]
         masks = self.masks  # one pose for these frames, whatever another thread sets meanwhile
-        power = (spec * spec.conj()).real  # [1, F, m]
-        mag = power.sqrt()
         tail = None
         if masks.reverb is not None:  # P(t) = w (P(t-1) + |S(t-1)|^2), carried from block to block
-            tail, self._tail_state = tail_power_recursive(mag, masks.decay, self._tail_state)
-        s_m, s_l, s_r = ear_magnitudes(mag, masks, tail)  # [1, F, m] each
-        start = s_m * start_phase(spec, power, t0, tail=masks.reverb is not None)
-        self._start = torch.cat([self._start, start[0].T])
-        self._mid = torch.cat([self._mid, s_m[0].T])
-        self._ears = torch.cat([self._ears, torch.cat([s_l, s_r]).transpose(1, 2)], dim=1)
+            tail, self._tail_state = tail_power_recursive(spec.abs(), masks.decay, self._tail_state)
+        start, mid, ears = mid_phase_parts(spec, masks, t0, tail)  # [1, m, F], [1, m, F], [1, 2, m, F]
+        self._start = torch.cat([self._start, start[0]])
+        self._mid = torch.cat([self._mid, mid[0]])
+        self._ears = torch.cat([self._ears, ears[0]], dim=1)
         self._next_frame = t1
 
     def _retrieve(self, s: int, e: int, b: int, length: int | None) -> np.ndarray:
@@ -118,8 +115,7 @@ class MidPhaseStream:
         mid, ears = self._mid[lo:hi], self._ears[:, lo:hi]
         phase = retrieve_phase(mid, self._start[lo:hi], piece_len, self._iterations, self.synthesis.phase_momentum,
                                self.stft)  # [b - a, F]
-        grid = frame_grid(b - a, self.stft)
-        y = grid.waveform(grid.synthesise((ears * phase).contiguous()), piece_len)  # [2, piece_len]
+        y = shared_phase_waveform(ears, phase, piece_len, self.stft)  # [2, piece_len]
         out_hi = e * hop if length is None else length
         return y[:, s * hop - a * hop : out_hi - a * hop].numpy()
 

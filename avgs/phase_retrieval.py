@@ -41,9 +41,14 @@ class FrameGrid:
     Needs ``win_length == n_fft`` and a hop that divides it.
     """
 
+    @staticmethod
+    def covers(cfg: STFTConfig) -> bool:
+        """Whether ``cfg`` is an STFT this class does: window as long as the FFT, a hop dividing it."""
+        return cfg.win_length == cfg.n_fft and cfg.n_fft % cfg.hop_length == 0
+
     def __init__(self, n_frames: int, cfg: STFTConfig = STFT, dtype: torch.dtype = torch.float32,
                  device: torch.device | str = "cpu"):
-        if cfg.win_length != cfg.n_fft or cfg.n_fft % cfg.hop_length:
+        if not self.covers(cfg):
             raise ValueError(f"FrameGrid needs win_length == n_fft and a hop dividing n_fft, got {cfg}")
         self.cfg, self.n_frames = cfg, int(n_frames)
         n, hop = cfg.n_fft, cfg.hop_length
@@ -199,7 +204,7 @@ def griffin_lim(
 
 
 def _griffin_lim(spec, target, length: int, iterations: int, momentum: float, cfg: STFTConfig) -> torch.Tensor:
-    if cfg.win_length != cfg.n_fft or cfg.n_fft % cfg.hop_length:
+    if not FrameGrid.covers(cfg):
         return _griffin_lim_plain(spec, target, length, iterations, momentum, cfg)
     grid = _grid_for(spec.transpose(-1, -2), cfg)
     projected, _ = _iterate(grid, spec.transpose(-1, -2).contiguous(), target.transpose(-1, -2).contiguous(),

@@ -37,7 +37,7 @@ from avgs.acoustics.points import AudioPoints
 from avgs.acoustics.rir_binauralizer import RIRBinauralizer
 from avgs.acoustics.synthesis import Masks
 from avgs.config import STFT, AcousticConfig, RIRConfig, STFTConfig
-from avgs.phase_retrieval import frame_grid, griffin_lim
+from avgs.phase_retrieval import FrameGrid, frame_grid, griffin_lim
 from avgs.data.frame import signed_direction
 
 PHASE_SEED = 20240515
@@ -185,7 +185,7 @@ def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, p
     its = iterations if phase == "griffin-lim" else 0
     want = mag.square().sum((-2, -1))  # [..., 2]
     n = mag.shape[-1]
-    if its == 0 and n == dsp.n_frames(length, stft) and stft.win_length == stft.n_fft and not stft.n_fft % stft.hop_length:
+    if its == 0 and n == dsp.n_frames(length, stft) and FrameGrid.covers(stft):
         # the inverse STFT and the STFT of its waveform on one padded signal (frame-major; torch.istft's and
         # torch.stft's to float rounding)
         grid = frame_grid(n, stft, torch.float32, str(mag.device))

@@ -180,6 +180,25 @@ def binaural_waveform(
     return waveform(ear_spectrogram(mono_stft, masks, post_conv, phase=phase), length, stft, synthesis)
 
 
+def mid_phase_parts(mono_stft: torch.Tensor, masks: Masks, first_frame: int = 0, tail: torch.Tensor | None = None):
+    """What the default synthesis retrieves its phase from, frame-major: (first guess [B, N, F]
+    complex: the mid magnitudes ``s_m`` with :func:`start_phase`; ``s_m`` [B, N, F]; the ears'
+    magnitudes [B, 2, N, F]), of the source's STFT ``mono_stft`` [B, F, N]. ``tail``: the tail's
+    power [B, F, N] when the caller carries it (a stream's recursion); ``first_frame``: the
+    absolute index of frame 0."""
+    power = (mono_stft * mono_stft.conj()).real  # [B, F, N] |S|^2
+    s_m, s_l, s_r = ear_magnitudes(power.sqrt(), masks, tail)  # [B, F, N] each
+    start = s_m * start_phase(mono_stft, power, first_frame, tail=masks.reverb is not None)  # [B, F, N]
+    return start.transpose(-1, -2), s_m.transpose(-1, -2), torch.stack([s_l, s_r], dim=1).transpose(-1, -2)
+
+
+def shared_phase_waveform(ears: torch.Tensor, phase: torch.Tensor, length: int, stft: STFTConfig = STFT) -> torch.Tensor:
+    """Waveforms [..., 2, length] of the ears' magnitudes ``ears`` [..., 2, N, F] with one phase
+    ``phase`` [..., N, F] (unit phasors, frame-major) for both."""
+    grid = frame_grid(phase.shape[-2], stft, ears.dtype, str(ears.device))
+    return grid.waveform(grid.synthesise((ears * phase.unsqueeze(-3)).contiguous()), length)
+
+
 def mid_phase_waveform(
     mono_stft: torch.Tensor, masks: Masks, length: int, stft: STFTConfig = STFT, synthesis: SynthesisConfig | None = None,
     first_frame: int = 0,
@@ -191,15 +210,12 @@ def mid_phase_waveform(
     magnitudes take it. The ears' magnitudes differ from ``s_m`` by slowly varying gains
     per bin, so the shared phase is nearly as consistent for them as for ``s_m``: one
     retrieval instead of two. Mask model only (no conv head). ``first_frame``: the absolute
-    index of frame 0 (:func:`source_phase`).
+    index of frame 0 (:func:`source_phase`). :class:`avgs.mid_phase_stream.MidPhaseStream`
+    does the same block by block, from the same two pieces (:func:`mid_phase_parts`,
+    :func:`shared_phase_waveform`).
     """
     synthesis = synthesis or SynthesisConfig()
-    power = (mono_stft * mono_stft.conj()).real  # [B, F, N] |S|^2
-    s_m, s_l, s_r = ear_magnitudes(power.sqrt(), masks)  # [B, F, N] each
-    start = s_m * start_phase(mono_stft, power, first_frame, tail=masks.reverb is not None)  # [B, F, N]
-    phase = retrieve_phase(s_m.transpose(-1, -2).contiguous(), start.transpose(-1, -2).contiguous(), length,
-                           synthesis.iterations, synthesis.phase_momentum, stft)  # [B, N, F]
-    ears = torch.stack([s_l, s_r], dim=1)  # [B, 2, F, N]
-    grid = frame_grid(phase.shape[-2], stft, ears.dtype, str(ears.device))
-    spec = ears.transpose(-1, -2) * phase[:, None]  # [B, 2, N, F]
-    return grid.waveform(grid.synthesise(spec.contiguous()), length), ears
+    start, mid, ears = mid_phase_parts(mono_stft, masks, first_frame)  # frame-major
+    phase = retrieve_phase(mid.contiguous(), start.contiguous(), length, synthesis.iterations,
+                           synthesis.phase_momentum, stft)  # [B, N, F]
+    return shared_phase_waveform(ears, phase, length, stft), ears.transpose(-1, -2)
