@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from avgs import dsp
+from avgs.acoustics.convolution import mono_block
 from avgs.acoustics.reverb_tail import tail_power_recursive
 from avgs.acoustics.synthesis import Masks, mid_phase_parts, mid_phase_waveform, shared_phase_waveform
 from avgs.config import STFT, STFTConfig, SynthesisConfig
@@ -161,11 +162,7 @@ class MidPhaseStream:
 
     def process(self, block) -> np.ndarray:
         """Feed ``block [n]`` (mono, finite); returns the output samples now final ``[2, m]``."""
-        if self._done:
-            raise ValueError("this stream was flushed; start a new one")
-        x = np.asarray(block, dtype=np.float32).reshape(-1)
-        if not np.all(np.isfinite(x)):
-            raise ValueError("mono block holds NaN or Inf samples")
+        x = mono_block(block, self._done)
         self._received += x.size
         with torch.inference_mode():
             return self._take(x)

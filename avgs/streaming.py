@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from avgs import dsp
-from avgs.acoustics.convolution import ConvolutionStream
+from avgs.acoustics.convolution import ConvolutionStream, mono_block
 from avgs.acoustics.reverb_tail import tail_power_recursive
 from avgs.acoustics.synthesis import Masks, ear_magnitudes, unit_phase
 from avgs.config import STFT, STFTConfig
@@ -183,11 +183,7 @@ class BinauralStream:
 
     def process(self, block) -> np.ndarray:
         """Feed ``block [n]`` (mono, finite); returns the output samples now final ``[2, m]``."""
-        if self._done:
-            raise ValueError("this stream was flushed; start a new one")
-        x = np.asarray(block, dtype=np.float64).reshape(-1)
-        if not np.all(np.isfinite(x)):
-            raise ValueError("mono block holds NaN or Inf samples")
+        x = mono_block(block, self._done, np.float64)
         self._waiting = np.concatenate([self._waiting, x])
         return self._take(self._pair(self._filter.process(x.astype(np.float32))))
 

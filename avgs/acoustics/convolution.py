@@ -25,6 +25,17 @@ import threading
 import numpy as np
 
 
+def mono_block(block, flushed: bool, dtype=np.float32) -> np.ndarray:
+    """A stream's next input ``block`` as a flat array of ``dtype``; ValueError once the stream
+    was flushed, or for NaN or Inf samples (every stream's ``process`` takes its input so)."""
+    if flushed:
+        raise ValueError("this stream was flushed; start a new one")
+    x = np.asarray(block, dtype=dtype).reshape(-1)
+    if not np.all(np.isfinite(x)):
+        raise ValueError("mono block holds NaN or Inf samples")
+    return x
+
+
 class BlockConvolver:
     """Convolve blocks of ``block`` samples with an impulse response ``[C, L]``; switch responses with a crossfade.
 
@@ -209,11 +220,7 @@ class ConvolutionStream:
 
     def process(self, x) -> np.ndarray:
         """Output ``[C, n]`` (n may be 0) for the next input samples ``x [m]``."""
-        if self._done:
-            raise ValueError("the stream was flushed; start a new one")
-        x = np.asarray(x, dtype=np.float32).reshape(-1)
-        if not np.all(np.isfinite(x)):
-            raise ValueError("the input block holds NaN or Inf samples")
+        x = mono_block(x, self._done)
         self._received += x.size
         buf = np.concatenate([self._pending_in, x])
         b = self.convolver.block
