@@ -131,26 +131,36 @@ def _check(iterations: int, momentum: float) -> None:
 
 
 def _iterate(grid: FrameGrid, start: torch.Tensor, target: torch.Tensor, length: int, iterations: int,
-             momentum: float):
-    """Fast Griffin-Lim on frame-major spectrograms of a waveform of ``length`` samples: (last
-    projection, its unit phasors), each [..., N, F].
+             momentum: float, phase: bool) -> torch.Tensor:
+    """Fast Griffin-Lim on frame-major spectrograms of a waveform of ``length`` samples.
 
-    ``start`` complex, ``target`` real (>= 0), frame-major. With no iterations the projection
-    is ``start`` itself and the phasors are its phase."""
+    ``start`` complex, ``target`` real (>= 0), both [..., N, F]. Returns, with ``phase``, the
+    unit phasors [..., N, F] of the last consistent spectrogram (the phase the last projection
+    keeps; 0 where it is 0), else the padded signal of the last projection
+    [..., padded_length]. With no iterations: ``start``'s phase, or its padded signal.
+
+    The inverse STFT is linear, so the momentum step ``c_k = p_k + m (p_k - p_(k-1))`` is
+    taken on the projections' padded signals (a quarter of the numbers of a spectrogram),
+    and the magnitude projection is one real scale per bin, ``target / |rebuilt|``.
+    """
     tiny = torch.finfo(target.dtype).tiny
-    spec, previous, unit = start, None, None
-    for _ in range(max(iterations, 1)):
-        rebuilt = grid.analyse(grid.pad_ends(grid.synthesise(spec), length)) if iterations else spec
-        power = (rebuilt * rebuilt.conj()).real  # |rebuilt|^2, without abs()'s hypot
-        unit = rebuilt * power.clamp_min(tiny).rsqrt_()  # [..., N, F] unit phasors (0 where rebuilt is 0)
-        projected = unit * target
-        if previous is None:
-            spec = projected
-        else:  # projected + momentum (projected - previous), on the real views: one pass
-            spec = torch.view_as_complex(
-                torch.lerp(torch.view_as_real(previous), torch.view_as_real(projected), 1.0 + momentum))
+    if iterations == 0:
+        if not phase:
+            return grid.synthesise(start)
+        return start * (start * start.conj()).real.clamp_min(tiny).rsqrt_()
+    z, previous = grid.synthesise(start), None  # padded signals: the current guess's, the last projection's
+    for k in range(iterations):
+        rebuilt = grid.analyse(grid.pad_ends(z, length))  # [..., N, F] a consistent spectrogram
+        scale = (rebuilt * rebuilt.conj()).real.clamp_min(tiny).rsqrt_()  # 1 / |rebuilt|, without abs()'s hypot
+        last = k == iterations - 1
+        if last and phase:
+            return rebuilt * scale
+        projected = grid.synthesise(rebuilt * scale.mul_(target))  # the target magnitudes with rebuilt's phase
+        if last:
+            return projected
+        z = projected if previous is None else torch.lerp(previous, projected, 1.0 + momentum)
         previous = projected
-    return previous, unit
+    raise AssertionError("unreachable")
 
 
 def retrieve_phase(target: torch.Tensor, start: torch.Tensor, length: int, iterations: int, momentum: float = 0.99,
@@ -160,7 +170,7 @@ def retrieve_phase(target: torch.Tensor, start: torch.Tensor, length: int, itera
     (complex, frame-major; its phase is what counts). With no iterations: ``start``'s phase."""
     _check(iterations, momentum)
     grid = _grid_for(start, cfg)
-    return _iterate(grid, start, target, length, iterations, momentum)[1]
+    return _iterate(grid, start, target, length, iterations, momentum, phase=True)
 
 
 def griffin_lim(
@@ -207,9 +217,9 @@ def _griffin_lim(spec, target, length: int, iterations: int, momentum: float, cf
     if not FrameGrid.covers(cfg):
         return _griffin_lim_plain(spec, target, length, iterations, momentum, cfg)
     grid = _grid_for(spec.transpose(-1, -2), cfg)
-    projected, _ = _iterate(grid, spec.transpose(-1, -2).contiguous(), target.transpose(-1, -2).contiguous(),
-                            length, iterations, momentum)
-    return grid.waveform(grid.synthesise(projected), length).contiguous()
+    z = _iterate(grid, spec.transpose(-1, -2).contiguous(), target.transpose(-1, -2).contiguous(), length,
+                 iterations, momentum, phase=False)
+    return grid.waveform(z, length).contiguous()
 
 
 def _griffin_lim_plain(spec, target, length: int, iterations: int, momentum: float, cfg: STFTConfig) -> torch.Tensor:

@@ -70,16 +70,17 @@ def tail_length(decay: torch.Tensor, n_frames: int) -> int:
     return int(min(n_frames, math.ceil(math.log(NEGLIGIBLE_POWER) / math.log(w)) + 1))
 
 
-def tail_power(mono_mag: torch.Tensor, decay: torch.Tensor) -> torch.Tensor:
+def tail_power(mono_mag: torch.Tensor, decay: torch.Tensor, source_power: torch.Tensor | None = None) -> torch.Tensor:
     """``P[..., f, t] = sum_{k=1}^{t} decay_f^k |S[..., f, t-k]|^2`` by FFT convolution along frames.
 
-    mono_mag: [..., F, N_t] >= 0; decay: [F] in (0, 1) -> [..., F, N_t] >= 0. The sum starts
+    mono_mag: [..., F, N_t] >= 0 (``source_power``: its square, when at hand); decay: [F] in
+    (0, 1) -> [..., F, N_t] >= 0. The sum starts
     at the first frame (silence before the signal); taps below ``NEGLIGIBLE_POWER`` are
     dropped, and inputs longer than ``BLOCK_FRAMES`` are convolved block by block, so time
     and memory grow linearly with the length (a 10-minute input is fine).
     """
     n = mono_mag.shape[-1]
-    power = mono_mag.square()  # [..., F, N]
+    power = mono_mag.square() if source_power is None else source_power  # [..., F, N]
     taps = tail_length(decay, n)
     block = max(BLOCK_FRAMES, taps) if n > BLOCK_FRAMES else n
     size = 1 << (block + taps - 1).bit_length()  # >= block + taps: linear, not circular; a power of 2 is fast

@@ -62,28 +62,35 @@ def ear_gains(mixture: torch.Tensor, difference: torch.Tensor) -> torch.Tensor:
     return torch.stack([mixture * (1.0 + difference), mixture * (1.0 - difference)], dim=-2)
 
 
-def ear_magnitudes(mono_mag: torch.Tensor, masks: Masks, power: torch.Tensor | None = None):
+def ear_magnitudes(mono_mag: torch.Tensor, masks: Masks, power: torch.Tensor | None = None,
+                   source_power: torch.Tensor | None = None):
     """Predicted magnitudes ``(s_m, s_l, s_r)``, each [B, F, N_t], of the source magnitudes ``mono_mag`` [B, F, N_t].
 
     ``power`` [B, F, N_t]: the tail's decayed source power (:func:`~avgs.acoustics.reverb_tail.tail_power`);
     computed here when the masks carry a tail and it is not given (streams pass their recursion's).
+    ``source_power``: ``mono_mag^2`` when the caller has it (rendering without autograd).
     """
     gains = ear_gains(masks.mixture, masks.difference)  # [B, 2, F]
-    s_l = mono_mag * gains[:, 0, :, None]  # [B, F, N_t]
-    s_r = mono_mag * gains[:, 1, :, None]
     if masks.reverb is None:
+        s_l = mono_mag * gains[:, 0, :, None]  # [B, F, N_t]
+        s_r = mono_mag * gains[:, 1, :, None]
         return mono_mag * masks.mixture[..., None], s_l, s_r
     if power is None:
-        power = tail_power(mono_mag, masks.decay)  # [B, F, N_t]
-    s_l = _sqrt0(s_l.square() + masks.reverb[:, 0, :, None].square() * power)
-    s_r = _sqrt0(s_r.square() + masks.reverb[:, 1, :, None].square() * power)
-    return 0.5 * (s_l + s_r), s_l, s_r
+        power = tail_power(mono_mag, masks.decay, source_power)  # [B, F, N_t]
+    if any(t.requires_grad for t in (mono_mag, gains, masks.reverb, power)):  # training
+        s_l = _sqrt0((mono_mag * gains[:, 0, :, None]).square() + masks.reverb[:, 0, :, None].square() * power)
+        s_r = _sqrt0((mono_mag * gains[:, 1, :, None]).square() + masks.reverb[:, 1, :, None].square() * power)
+        return 0.5 * (s_l + s_r), s_l, s_r
+    # Rendering: s_ear = sqrt(|S|^2 g^2 + r^2 P) in three passes per ear (all terms >= 0), no gradient to guard at 0.
+    sq = mono_mag.square() if source_power is None else source_power  # [B, F, N_t]
+    g2, r2 = gains.square()[..., None], masks.reverb.square()[..., None]  # [B, 2, F, 1]
+    s_l = (sq * g2[:, 0]).addcmul_(power, r2[:, 0]).sqrt_()
+    s_r = (sq * g2[:, 1]).addcmul_(power, r2[:, 1]).sqrt_()
+    return torch.add(s_l, s_r).mul_(0.5), s_l, s_r
 
 
 def _sqrt0(x: torch.Tensor) -> torch.Tensor:
     """sqrt(x) for x >= 0, exactly 0 at 0 (silence stays silent), with a finite gradient there."""
-    if not x.requires_grad:  # rendering: no gradient to guard
-        return x.clamp_min(0.0).sqrt_()
     tiny = torch.finfo(x.dtype).tiny
     return torch.where(x > tiny, torch.sqrt(x.clamp_min(tiny)), torch.zeros_like(x))
 
@@ -119,7 +126,8 @@ START_FLOOR = 1e-3
 "Source bins this far below their frame's loudest (60 dB) start from the fill phase: their own is rounding noise."
 
 
-def start_phase(mono_stft: torch.Tensor, power: torch.Tensor, first_frame: int = 0, tail: bool = False) -> torch.Tensor:
+def start_phase(mono_stft: torch.Tensor, power: torch.Tensor, first_frame: int = 0, tail: bool = False,
+                magnitude: torch.Tensor | None = None) -> torch.Tensor:
     """The phase retrieval's first phase [..., F, N_t]: the source's, blended into the fill phase
     (:func:`source_phase`'s for silent bins) where the source is near silent in its frame.
 
@@ -128,12 +136,23 @@ def start_phase(mono_stft: torch.Tensor, power: torch.Tensor, first_frame: int =
     output. ``unit(S + START_FLOOR max_f |S| fill)`` keeps the source's phase where it is
     defined, takes the fill phase where it is not, and changes continuously in between:
     the output does not depend on the input's scale, nor on how it is cut into blocks.
-    ``power``: ``|mono_stft|^2``.
+    ``power``: ``|mono_stft|^2``. ``magnitude`` [..., F, N_t]: return the phase times it (the
+    first guess itself, one pass less).
     """
     n_freq, n = power.shape[-2], power.shape[-1]
-    fill = fill_phase(n_freq, first_frame, n, power.device).to(mono_stft.dtype) if tail else torch.ones((), dtype=mono_stft.dtype)
-    floor = START_FLOOR * power.amax(dim=-2, keepdim=True).sqrt()  # [..., 1, N]
-    return source_phase(mono_stft + floor * fill, first_frame, tail)
+    fill = fill_phase(n_freq, first_frame, n, power.device).to(mono_stft.dtype) if tail else None  # [F, N]
+    floor = power.amax(dim=-2, keepdim=True).sqrt_().mul_(START_FLOOR)  # [..., 1, N]
+    z = mono_stft + (floor if fill is None else floor * fill)  # [..., F, N]
+    scale = (z * z.conj()).real.clamp_min(torch.finfo(power.dtype).tiny).rsqrt_()  # 1 / |z|
+    if magnitude is not None:
+        scale.mul_(magnitude)
+    out = z * scale
+    silent = floor == 0  # [..., 1, N]: frames where the source is exactly silent, and so is z
+    if bool(silent.any()):  # their phase: the fill phase (or 1), as source_phase's
+        if fill is None:
+            fill = torch.ones((), dtype=mono_stft.dtype, device=mono_stft.device)
+        out = torch.where(silent, fill if magnitude is None else fill * magnitude, out)
+    return out
 
 
 def ear_spectrogram(mono_stft: torch.Tensor, masks: Masks, post_conv=None, first_frame: int = 0,
@@ -187,8 +206,8 @@ def mid_phase_parts(mono_stft: torch.Tensor, masks: Masks, first_frame: int = 0,
     power [B, F, N] when the caller carries it (a stream's recursion); ``first_frame``: the
     absolute index of frame 0."""
     power = (mono_stft * mono_stft.conj()).real  # [B, F, N] |S|^2
-    s_m, s_l, s_r = ear_magnitudes(power.sqrt(), masks, tail)  # [B, F, N] each
-    start = s_m * start_phase(mono_stft, power, first_frame, tail=masks.reverb is not None)  # [B, F, N]
+    s_m, s_l, s_r = ear_magnitudes(power.sqrt(), masks, tail, source_power=power)  # [B, F, N] each
+    start = start_phase(mono_stft, power, first_frame, masks.reverb is not None, magnitude=s_m)  # [B, F, N]
     return start.transpose(-1, -2), s_m.transpose(-1, -2), torch.stack([s_l, s_r], dim=1).transpose(-1, -2)
 
 
