@@ -75,6 +75,9 @@ HEADROOM_DB = 24.0
 RENDER_BLOCK_FRAMES = 2048
 "Frames per block when a long input is rendered (about 12 s at AV-NeRF's hop): memory stays bounded."
 
+MAX_REACH_FRAMES = 1 << 14
+"The tail's reach counted at most this many frames (95 s at AV-NeRF's hop) when no input length bounds it."
+
 
 class PositionClamped(UserWarning):
     """A listener or source outside the scene's box was moved onto its edge."""
@@ -587,14 +590,9 @@ class SceneRenderer:
         So a long input is rendered in blocks of RENDER_BLOCK_FRAMES with that reach as margin:
         memory stays bounded by the block, and the result equals one pass to float rounding.
         """
-        from avgs.acoustics.post_conv import CONTEXT_FRAMES
-        from avgs.acoustics.reverb_tail import tail_length
-
         hop = self.stft.hop_length
         n = dsp.n_frames(length, self.stft)
-        window = -(-self.stft.n_fft // hop)  # frames one window overlaps on each side, plus one
-        tail = 0 if masks.decay is None else tail_length(masks.decay, n)
-        margin = tail + window * (synthesis.iterations + 2) + (CONTEXT_FRAMES if self.post_conv is not None else 0)
+        margin = self.reach_frames(synthesis, n, masks.decay)
         block = RENDER_BLOCK_FRAMES
         if whole or n <= block + 2 * margin:
             yield 0, length, 0, length
@@ -605,18 +603,37 @@ class SceneRenderer:
             start, stop = a * hop, (length if b == n else b * hop)  # centred frames a .. b-1 of the piece
             yield s * hop, (length if e == n else e * hop), start, stop
 
+    def reach_frames(self, synthesis: SynthesisConfig | None = None, n_frames: int | None = None,
+                     decay: torch.Tensor | None = None) -> int:
+        """STFT frames of input before (or after) an output frame that it depends on, with
+        ``synthesis`` (default: :attr:`synthesis`): the tail to its decay to NEGLIGIBLE_POWER
+        (causally; at most ``n_frames``), the STFT window, the phase iterations' reach (the window's
+        per iteration) and the conv head's context. ``decay``: the scene's tail decay [F] (default:
+        the model's; binaural task)."""
+        from avgs.acoustics.post_conv import CONTEXT_FRAMES
+        from avgs.acoustics.reverb_tail import tail_length
+
+        synthesis = self.synthesis if synthesis is None else synthesis
+        if decay is None and self.task != "rir" and self.model.binauralizer.reverb is not None:
+            decay = self.model.binauralizer.reverb.decay().detach()
+        tail = 0 if decay is None else tail_length(decay, MAX_REACH_FRAMES if n_frames is None else n_frames)
+        window = -(-self.stft.n_fft // self.stft.hop_length)  # frames one window overlaps on each side, plus one
+        return tail + window * (synthesis.iterations + 2) + (CONTEXT_FRAMES if self.post_conv is not None else 0)
+
     @property
     def post_conv(self):
         """B's time-frequency conv head (``--post-conv``), or None for the mask model."""
         return self.model.binauralizer.post_conv
 
-    def stream(self, listener, yaw: float, source=None):
+    def stream(self, listener, yaw: float, source=None, block_frames: int | None = None):
         """A stream for this pose: feed mono blocks of any size to ``process``, then ``flush()``;
         the concatenated output equals :meth:`render` of the whole input (float rounding),
         ``latency`` samples behind at most.
 
         With the default synthesis (phase ``mid``) a :class:`avgs.mid_phase_stream.MidPhaseStream`
-        (0.44 s behind: the phase retrieval's reach), with the filter's phase and no iterations
+        (0.39 s behind: the phase retrieval's reach and ``block_frames`` frames, default
+        :data:`~avgs.mid_phase_stream.BLOCK_FRAMES`: more is less work per sample and more
+        delay), with the filter's phase and no iterations
         a :class:`avgs.streaming.BinauralStream` (29 ms), with ``method="filter"`` a
         :class:`avgs.acoustics.convolution.ConvolutionStream` (one block). Iterations from the
         source's or the filter's phase need the whole signal: such renderers do not stream.
@@ -644,7 +661,7 @@ class SceneRenderer:
         with self._lock, torch.inference_mode():
             m, *_ = self._masks(listener, yaw, source)
             if s.method == "spectrogram" and s.phase == "mid":
-                return MidPhaseStream(m, self.stft, s)
+                return MidPhaseStream(m, self.stft, s, **({} if block_frames is None else {"block_frames": block_frames}))
             impulse = self._impulse(m)
             return ConvolutionStream(impulse) if s.method == "filter" else BinauralStream(m.to(torch.float32), impulse, self.stft)
 

@@ -6,6 +6,10 @@ and convolves it with the current filter (:class:`avgs.acoustics.convolution.Blo
 uniformly partitioned, no added latency). A new pose's filter is taken at the next block
 and crossfaded over it, so a move is heard one block after its filter is known, with no
 re-render of the clip, no gap and no click. Volume and pause ramp over one block.
+:meth:`StreamEngine.set_loop` hands it the whole loop rendered at the pose of the
+filter playing (:mod:`avgs_viewer.refine`: the renderer's own synthesis, once the pose
+has settled); it plays sample for sample in place of the filter's output, crossfaded in
+over one block, until the next filter or clip, which crossfade back over their block.
 :meth:`StreamEngine.play_once` plays a signal (the pose's impulse response itself) once
 instead of the clip: the clip fades out over one block, the signal plays sample for
 sample, then the clip fades back in where it stopped.
@@ -189,6 +193,13 @@ class StreamEngine:
         self._impulse: np.ndarray | None = None
         self._pending = False
         self._pending_tag = None
+        self._filter_tag = None  # the tag of the newest filter set
+        self._loop: tuple | None = None  # (binaural [2, T] float32, its clip [T], tag): set_loop's
+        self._loop_mix = 0.0  # how much of the block out was the loop, at the block's end (0 .. 1)
+        self.loop_tag = None
+        "The tag of the rendered loop fully in the last block out (None: the filter plays)."
+        self.loops_set = 0
+        self._fresh_loop = _NONE
         self._fifo = np.zeros((0, 2), dtype=np.float32)
         self._live_at: OrderedDict = OrderedDict()  # tag -> perf_counter when its first block left
         self._gain = 0.0             # volume x make-up gain at the end of the last block
@@ -263,7 +274,8 @@ class StreamEngine:
                 self.makeup_gain = self._fit_gain(self._impulse)
 
     def set_filter(self, impulse: np.ndarray, tag=None) -> None:
-        """Play through ``impulse [2, L]`` (left, right) from the next block on."""
+        """Play through ``impulse [2, L]`` (left, right) from the next block on (a rendered loop
+        playing fades out over that block)."""
         h = np.ascontiguousarray(impulse, dtype=np.float32)
         if h.ndim != 2 or h.shape[0] != 2 or h.shape[1] == 0:
             raise ValueError(f"binaural filter must be [2, L] with L > 0, got shape {h.shape}")
@@ -279,7 +291,32 @@ class StreamEngine:
             if self.makeup_gain is None and self._spectrum is not None:
                 self.makeup_gain = self._fit_gain(h)
             self._pending, self._pending_tag = True, tag
+            self._filter_tag = tag
             self.filters_set += 1
+
+    def set_loop(self, binaural: np.ndarray, tag, clip: np.ndarray | None = None) -> bool:
+        """Play ``binaural [2, T]`` in place of the clip through the filter ``tag``: the looped clip
+        rendered at that filter's pose, sample i heard with clip sample i (T = the clip's length).
+
+        It is crossfaded in over the next block and plays, in step with the clip's position,
+        until another filter or clip is set (crossfaded back over that one's block); the
+        make-up gain, volume and pause apply as to the filter's output. Returns False, and
+        plays nothing, when ``tag`` is not the newest filter's or the clip is not the one
+        playing (``clip``: the clip it was rendered from; a loop for an older pose or clip).
+        """
+        y = np.ascontiguousarray(binaural, dtype=np.float32)
+        if y.ndim != 2 or y.shape[0] != 2 or y.shape[1] == 0:
+            raise ValueError(f"a rendered loop must be [2, T] with T > 0, got shape {y.shape}")
+        if not np.all(np.isfinite(y)):
+            raise ValueError("a rendered loop has non-finite samples")
+        with self._lock:
+            playing = self._clip
+            if (tag != self._filter_tag or self._next_clip is not None or playing is None
+                    or y.shape[1] != len(playing) or (clip is not None and clip is not playing)):
+                return False
+            self._loop = (y, playing, tag)
+            self.loops_set += 1
+            return True
 
     @property
     def playing_once(self) -> bool:
@@ -331,7 +368,8 @@ class StreamEngine:
 
     def wait_live(self, tag, timeout: float = 10.0) -> float | None:
         """The ``perf_counter`` time at which the first block made with filter ``tag`` left the
-        engine, waiting up to ``timeout`` s for it; None if it has not (yet)."""
+        engine (``("loop", tag)``: the first block wholly of its rendered loop), waiting up to
+        ``timeout`` s for it; None if it has not (yet)."""
         deadline = time.perf_counter() + timeout
         with self._live_cond:
             while tag not in self._live_at:
@@ -368,16 +406,44 @@ class StreamEngine:
             self._clip, self._pos, self._next_clip = self._fed_from[0]
             self._fed_from.clear()
 
-    def _convolved(self) -> np.ndarray:
-        """The next block of the clip through the filter, [2, block]. Under the lock."""
+    def _convolved(self) -> tuple[np.ndarray, tuple]:
+        """(the next block of the clip through the filter [2, block], (clip, position, whether a
+        new clip is crossfaded in) of its input). Under the lock."""
         conv = self._conv
         if not hasattr(conv, "pull"):  # a convolver that takes one block at a time
             self._fed_from.clear()
-            return conv.process(self._input(1))
+            where = (self._clip, self._pos, self._next_clip is not None)
+            return conv.process(self._input(1)), where
         if conv.ahead == 0:
             conv.feed(self._input(self.ahead))
-        del self._fed_from[0]
-        return conv.pull()
+        clip, pos, new = self._fed_from.pop(0)
+        return conv.pull(), (clip, pos, new is not None)
+
+    def _mix_loop(self, y: np.ndarray, clip, pos: int, new_clip: bool) -> None:
+        """Crossfade the rendered loop into (or out of) the block ``y [2, block]`` of ``clip`` from
+        ``pos``, in place. Under the lock."""
+        loop = self._loop
+        mine = loop is not None and loop[1] is clip  # the loop is this block's clip rendered
+        on = mine and loop[2] == self._filter_tag and not new_clip
+        target = 1.0 if on else 0.0
+        if target == 0.0 and self._loop_mix == 0.0:
+            self._loop, self.loop_tag = None, None
+            return
+        n = self.block
+        if mine:
+            part = loop[0][:, (pos + np.arange(n)) % loop[0].shape[1]]  # [2, n], in step with the clip
+        else:  # (not reached: a loop's clip stays until it has faded out) fade to the filter's output
+            part = np.zeros_like(y)
+        if target == self._loop_mix:  # fully on
+            y[:] = part
+        else:
+            ramp = np.linspace(self._loop_mix, target, n + 1, dtype=np.float32)[1:]  # [n]
+            y *= 1.0 - ramp
+            y += part * ramp
+        if target == 1.0 and self._loop_mix < 1.0:
+            self._fresh_loop = loop[2]
+        self._loop_mix = target
+        self.loop_tag = loop[2] if on else None
 
     def render_block(self) -> np.ndarray:
         """The next :attr:`block` output samples, [block, 2] float32 (advances the engine)."""
@@ -394,7 +460,9 @@ class StreamEngine:
             if self._conv is None or self._clip is None or (self._gain == 0.0 and target == 0.0):
                 self._last_out = None
                 return out  # nothing to play yet, or paused: the position holds
-            y = self._convolved()  # [2, n]
+            y, where = self._convolved()  # [2, n]
+            if self._loop is not None or self._loop_mix > 0.0:
+                self._mix_loop(y, *where)
             tag, fresh = self._pending_tag, self._pending
             self._pending = False
             makeup = self.makeup_gain or 1.0
@@ -415,7 +483,7 @@ class StreamEngine:
 
     def callback(self, outdata: np.ndarray, frames: int, time_info=None, status=None) -> None:
         """``sounddevice`` output callback: fills ``outdata`` [frames, 2] (any ``frames``)."""
-        self._fresh = _NONE
+        self._fresh = self._fresh_loop = _NONE
         if frames == self.block and len(self._fifo) == 0:
             outdata[:] = self.render_block()
         else:
@@ -427,10 +495,13 @@ class StreamEngine:
             buf = np.concatenate(parts)
             outdata[:] = buf[:frames]
             self._fifo = buf[frames:]
-        if self._fresh is not _NONE:  # a new filter's first block has left the engine
+        if self._fresh is not _NONE or self._fresh_loop is not _NONE:  # a new filter's or loop's first block left
             t = time.perf_counter()
             with self._live_cond:
-                self._live_at[self._fresh] = t
+                if self._fresh is not _NONE:
+                    self._live_at[self._fresh] = t
+                if self._fresh_loop is not _NONE:
+                    self._live_at[("loop", self._fresh_loop)] = t
                 while len(self._live_at) > 512:
                     self._live_at.popitem(last=False)
                 self._live_cond.notify_all()

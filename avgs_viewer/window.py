@@ -53,6 +53,7 @@ class _Bridge(QtCore.QObject):
     loaded = QtCore.Signal(object, object)      # (path, SceneRenderer)
     load_failed = QtCore.Signal(object, str)    # (path, message)
     rendered = QtCore.Signal(object)            # worker.Heard: the pose the engine now plays
+    refined = QtCore.Signal(object)             # refine.Refined: that pose's loop rendered in full
     render_failed = QtCore.Signal(object, str)  # (PoseRequest, message)
 
 
@@ -63,6 +64,11 @@ def audio_status_text(message: str | None, sample_rate: int) -> str:
     if message == "Audio output off":
         return "Audio output off: the meters show what would play"
     return "No audio: no sound card found (the meters show what would play)"
+
+
+HEARD_TEXT = {False: "Hearing: the pose's filter", True: "Hearing: the full render"}
+HEARD_TIP = ("While a pose changes you hear its filter at once; once it holds, the loop rendered in full "
+             "at it (what avgs render writes) is crossfaded in.")
 
 
 def _swatches(rows: list[tuple[str, tuple[int, int, int]]]) -> str:
@@ -117,8 +123,11 @@ class ControlPanel(QtWidgets.QWidget):
             meter_grid.addWidget(meter, row, 1)
         self.meter_labels = [meter_grid.itemAtPosition(r, 0).widget() for r in range(2)]
         self.levels = QtWidgets.QLabel("L - dB   R - dB   ILD - dB")
+        self.heard = QtWidgets.QLabel("")
+        "What plays: the pose's filter (while moving) or its loop rendered in full (settled); hidden when that is one thing."
+        self.heard.hide()
         form.addWidget(self._group("Playback", self.play, QtWidgets.QLabel("Volume"), self.volume,
-                                   meters, self.levels))
+                                   meters, self.levels, self.heard))
         form.addStretch(1)
         self.setEnabled(False)
 
@@ -197,6 +206,15 @@ class ControlPanel(QtWidgets.QWidget):
     def show_levels(self, left: float, right: float, ild: float) -> None:
         self.levels.setText(f"L {left:.1f} dB   R {right:.1f} dB   ILD {ild:+.1f} dB")
 
+    def show_heard(self, refined: bool | None) -> None:
+        """Say what plays: None (a model whose filter is its render: nothing to say), the pose's
+        filter (False) or its loop rendered in full (True). Set only on a change: a repaint costs."""
+        text = "" if refined is None else HEARD_TEXT[refined]
+        if self.heard.text() != text:
+            self.heard.setText(text)
+            self.heard.setToolTip("" if refined is None else HEARD_TIP)
+            self.heard.setVisible(bool(text))
+
     def show_meters(self, left: float, right: float) -> None:
         self.meter_left.setValue(int(10 * max(left, METER_FLOOR_DB)))
         self.meter_right.setValue(int(10 * max(right, METER_FLOOR_DB)))
@@ -254,6 +272,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self._bridge.loaded.connect(self._on_loaded)
         self._bridge.load_failed.connect(self._on_load_failed)
         self._bridge.rendered.connect(self._on_rendered)
+        self._bridge.refined.connect(self._on_refined)
         self._bridge.render_failed.connect(self._on_render_failed)
 
         self.plotter = SceneCanvas(self)  # no render timer; renders coalesced into repaints
@@ -486,7 +505,8 @@ class MainWindow(QtWidgets.QMainWindow):
         # LiveAudio subscribes to the state's pose event; the view's handlers before it only ask
         # for a repaint (SceneCanvas), so a move reaches the audio path before anything is drawn.
         self.live = LiveAudio(renderer, state, self.engine, clip, on_result=self._bridge.rendered.emit,
-                              on_error=lambda req, exc: self._bridge.render_failed.emit(req, f"{type(exc).__name__}: {exc}"))
+                              on_error=lambda req, exc: self._bridge.render_failed.emit(req, f"{type(exc).__name__}: {exc}"),
+                              on_refined=self._bridge.refined.emit)
         self.live.request()
         live = self.live
         engine = self.engine  # sound first: paints wait for the filter and for its first block to leave the engine
@@ -561,8 +581,17 @@ class MainWindow(QtWidgets.QMainWindow):
             return  # a newer pose (or another scene) has replaced it
         self.view.set_vicinity(heard.result.listener_vicinity, heard.result.source_vicinity)
         self.panel.show_levels(*heard.levels)  # the clip through this pose's filter, at full volume
+        refined = self.live.refined
+        self.panel.show_heard(None if self.live.refiner is None else
+                              refined is not None and refined.seq == heard.request.seq)
         self.response.show_response(heard.result.impulse, self.renderer.sample_rate,  # the filter it plays
                                     moving=self.state.interacting)
+
+    def _on_refined(self, refined: Any) -> None:
+        """The pose heard now plays its loop rendered in full."""
+        live = self.live
+        if live is not None and live.heard is not None and live.heard.request.seq == refined.seq:
+            self.panel.show_heard(True)
 
     def _on_render_failed(self, request: Any, message: str) -> None:
         self.statusBar().showMessage(f"Render failed: {message}", 10000)
@@ -704,7 +733,7 @@ class MainWindow(QtWidgets.QMainWindow):
             self.export_audio(path)
 
     def export_audio(self, path: str | Path) -> Path | None:
-        """Write the looped clip as heard now (through the current pose's filter) as a WAV."""
+        """Write the looped clip as heard now (the pose's filter, or its loop rendered in full once settled) as a WAV."""
         if self.live is None or self.live.heard is None:
             self.show_error("Cannot export audio", "No binaural render yet: wait for the scene to load.")
             return None

@@ -6,7 +6,9 @@ is computed next, so a fast drag costs one filter per few milliseconds, not one 
 mouse event, and no work ever stands between the newest pose and the audio.
 A pose's filter (``SceneRenderer.binaural_filter``: B's masks as a binaural impulse
 response) goes straight to the audio engine, which switches to it at its next block.
-There is no second, refined pass: the filter is the pose's whole sound.
+Where the renderer's own synthesis is not that filter (a binaural-task model), a pose that
+holds is then rendered in full, loop and all, and the engine crossfades to it
+(:mod:`avgs_viewer.refine`): moving, one hears the filter; settled, what ``avgs render`` writes.
 No Qt here: results come back through plain callbacks on the worker thread; the window
 forwards them to its own thread with a queued signal.
 """
@@ -21,6 +23,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .audio import StreamEngine, filter_levels, make_seamless_loop
+from .refine import SETTLE_SECONDS, LoopRefiner, Refined, refines
 from .state import Pose, ViewerState
 
 
@@ -150,12 +153,17 @@ class LiveAudio:
     pose event reaches this object before anything is drawn (the window draws on demand,
     after the event returns). :meth:`set_clip` changes the looped clip; its tail is
     crossfaded into its head over ``seam_seconds`` so the loop has no seam.
+
+    A pose that holds ``settle`` seconds is rendered in full where the renderer's synthesis
+    is not its filter (:func:`~avgs_viewer.refine.refines`; None: never): the engine then
+    plays that loop (:attr:`refined`), and ``on_refined(refined)`` is called on the refiner's thread.
     """
 
     def __init__(self, renderer: Any, state: ViewerState, engine: StreamEngine, clip: np.ndarray,
                  on_result: Callable[[Heard], None] | None = None,
                  on_error: Callable[[PoseRequest, BaseException], None] | None = None,
-                 seam_seconds: float = 0.05):
+                 seam_seconds: float = 0.05, settle: float | None = SETTLE_SECONDS,
+                 on_refined: Callable[[Refined], None] | None = None):
         self.renderer = renderer
         self.state = state
         self.engine = engine
@@ -169,8 +177,15 @@ class LiveAudio:
         "Number of the newest pose submitted (the engine's tag for its filter)."
         self._requested: Pose | None = None  # the newest pose submitted
         self._following = False
+        self.refined: Refined | None = None
+        "The newest pose rendered in full and handed to the engine (None before the first)."
+        self._on_refined = on_refined
         engine.set_clip(self._as_loop(clip))
         self.worker = RenderWorker(self._render, self._deliver, self._fail, name="avgs-filter")
+        self.refiner = None
+        if settle is not None and refines(renderer):
+            self.refiner = LoopRefiner(renderer, lambda: self.seq, self._deliver_refined,
+                                       lambda exc: self._fail(self.seq, self.last_request, exc), settle)
         state.events.pose.connect(self._pose_changed)
 
     def _as_loop(self, clip: np.ndarray) -> np.ndarray:
@@ -196,14 +211,17 @@ class LiveAudio:
         return None if heard is None else heard.request
 
     def heard_clip(self) -> np.ndarray:
-        """[2, T] float32: the looped clip through the filter heard now (before volume and make-up gain)."""
+        """[2, T] float32: the looped clip as heard now (before volume and make-up gain): the pose's
+        loop rendered in full once the engine has it, else the clip through the pose's filter."""
         import torch
 
         from avgs.acoustics.impulse_response import convolve
 
-        heard = self.heard
+        heard, refined = self.heard, self.refined
         if heard is None:
             raise ValueError("no pose has been heard yet")
+        if refined is not None and refined.seq == heard.request.seq:
+            return refined.binaural.copy()
         with torch.inference_mode():
             y = convolve(torch.from_numpy(np.array(self.clip)), torch.from_numpy(np.array(heard.result.impulse)))
         return y.float().numpy()
@@ -241,13 +259,25 @@ class LiveAudio:
         return pose_filter(self.renderer, request.pose)
 
     def _deliver(self, seq: int, request: PoseRequest, result: Any) -> None:
+        clip = self.engine.clip
         self.engine.set_filter(result.impulse, tag=request.seq)
         ready = time.perf_counter()
+        if self.refiner is not None:
+            self.refiner.submit(request.seq, request.pose, clip, ready)
         levels = filter_levels(result.impulse, self.engine.spectrum, self.engine.makeup_gain or 1.0)
         heard = Heard(request, result, levels, ready)
         self.heard = heard
         if self._on_result is not None:
             self._on_result(heard)
+
+    def _deliver_refined(self, refined: Refined) -> None:
+        heard = self.heard
+        if heard is None or heard.request.seq != refined.seq:
+            return
+        if self.engine.set_loop(refined.binaural, tag=refined.seq, clip=refined.clip):
+            self.refined = refined
+            if self._on_refined is not None:
+                self._on_refined(refined)
 
     def _fail(self, seq: int, request: PoseRequest, exc: BaseException) -> None:
         if self._on_error is not None:
@@ -256,3 +286,5 @@ class LiveAudio:
     def close(self) -> None:
         self.state.events.pose.disconnect(self._pose_changed)
         self.worker.close()
+        if self.refiner is not None:
+            self.refiner.close()

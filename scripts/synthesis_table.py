@@ -38,6 +38,7 @@ SYNTHESES = {
     "source's phase + 8 iterations per ear": SynthesisConfig(phase="source", phase_iterations=8),
     "mid phase, 8 iterations": SynthesisConfig(phase_iterations=8),
     f"**mid phase, {MID_PHASE_ITERATIONS} iterations (default)**": SynthesisConfig(),
+    "mid phase, 12 iterations": SynthesisConfig(phase_iterations=12),
     "mid phase, 16 iterations": SynthesisConfig(phase_iterations=16),
 }
 

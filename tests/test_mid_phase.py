@@ -109,7 +109,7 @@ def test_blocks_of_any_size_give_the_render(tail_renderer, length):
 def test_stream_latency_is_the_reach_and_one_block():
     m = Masks(torch.ones(1, F), torch.zeros(1, F))
     s = MidPhaseStream(m)
-    assert s.latency == (16 + 4 * (MID_PHASE_ITERATIONS + 2) + 2) * 128 + 256  # 9728 samples, 0.44 s
+    assert s.latency == (16 + 4 * (MID_PHASE_ITERATIONS + 2) + 2) * 128 + 256  # 8704 samples, 0.39 s
     assert MidPhaseStream(m, synthesis=SynthesisConfig(phase_iterations=0)).latency < s.latency
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from avgs.config import SynthesisConfig
+from avgs.config import MID_PHASE_ITERATIONS, SynthesisConfig
 from avgs.data.rwavs import RWAVSScene
 from avgs.evaluate import CheckpointMethod, score_scene
 
@@ -31,11 +31,11 @@ def test_the_table_scores_each_synthesis_as_avgs_eval_does(one_source_ckpt, tmp_
             if line.startswith("| ") and not line.startswith("| synthesis") and scene_dir.name not in line}
     assert set(rows) == set(m.SYNTHESES)
     scene = RWAVSScene(scene_dir)
-    for name in ("filter's phase", "**mid phase, 12 iterations (default)**"):
+    for name in ("filter's phase", f"**mid phase, {MID_PHASE_ITERATIONS} iterations (default)**"):
         synthesis = m.SYNTHESES[name]
         want = score_scene(CheckpointMethod(one_source_ckpt, synthesis=synthesis), scene, progress=False)
         mag, env = float(rows[name][1]), float(rows[name][2])
         assert mag == pytest.approx(want["MAG"], abs=6e-5) and env == pytest.approx(want["ENV"], abs=6e-5)
-    assert m.SYNTHESES["**mid phase, 12 iterations (default)**"] == SynthesisConfig()
+    assert m.SYNTHESES[f"**mid phase, {MID_PHASE_ITERATIONS} iterations (default)**"] == SynthesisConfig()
     with pytest.raises(SystemExit):
         m.main(["--scene", str(scene_dir)])  # no checkpoint named

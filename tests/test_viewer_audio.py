@@ -129,6 +129,56 @@ def test_a_new_clip_is_crossfaded_in_without_a_click():
     np.testing.assert_allclose(b[BLOCK:, 0], gain * tone(330.75, 0.5, 3000, phase=1.0)[BLOCK:5 * BLOCK], atol=1e-5)
 
 
+def test_a_rendered_loop_plays_in_step_with_the_clip_and_yields_to_the_next_filter():
+    """set_loop: from the next block the output is the given loop at the clip's own positions
+    (crossfaded in over that block), until a new filter crossfades back to the convolution,
+    which ran on underneath: after its block the output is the clip through the new filter."""
+    clip, h, new = noise(3000, 4), decaying(6), decaying(7, right=1.4)
+    e = engine_with(clip, h)
+    before = run(e, 5)
+    loop = noise(2 * 3000, 9, amp=0.1).reshape(2, 3000)  # any [2, T]: not the convolution
+    assert not e.set_loop(loop, tag=2)  # not the filter playing: refused
+    assert not e.set_loop(loop[:, :2999], tag=1)  # not the clip's length
+    assert not e.set_loop(loop, tag=1, clip=clip.copy())  # rendered from another clip
+    assert e.set_loop(loop, tag=1) and e.loops_set == 1
+    t_set = time.perf_counter()
+    mixed = run(e, 14)
+    t_loop = e.wait_live(("loop", 1), timeout=0)
+    assert t_loop is not None and t_loop >= t_set and e.loop_tag == 1
+    k = len(before)
+    at = (k + np.arange(len(mixed))) % 3000  # the clip's position of each sample out
+    conv = reference(clip, h, k + len(mixed))[k:]
+    ramp = (np.arange(1, BLOCK + 1) / BLOCK)[:, None]
+    np.testing.assert_allclose(mixed[:BLOCK], conv[:BLOCK] * (1 - ramp) + loop.T[at[:BLOCK]] * ramp, atol=2e-5)
+    np.testing.assert_array_equal(mixed[BLOCK:], loop.T[at[BLOCK:]])  # sample for sample, wrapping with the clip
+
+    e.set_filter(new, tag=3)
+    after = run(e, 6)
+    assert e.loop_tag is None and e.live_tag == 3
+    n = k + len(mixed)
+    ref_new = reference(clip, new, n + len(after))[n:]
+    at = (n + np.arange(BLOCK)) % 3000
+    old = reference(clip, h, n + BLOCK)[n:]  # the block the filter switches in: old filter -> new, loop -> that
+    through = old * (1 - ramp) + ref_new[:BLOCK] * ramp
+    np.testing.assert_allclose(after[:BLOCK], loop.T[at] * (1 - ramp) + through * ramp, atol=2e-5)
+    np.testing.assert_allclose(after[BLOCK:], ref_new[BLOCK:], atol=2e-5)
+    assert not e.set_loop(loop, tag=1)  # a loop for a pose no longer heard
+
+
+def test_a_new_clip_fades_a_rendered_loop_out():
+    clip, h = noise(2000, 5), decaying(8)
+    e = engine_with(clip, h)
+    run(e, 3)
+    loop = noise(4000, 10, amp=0.1).reshape(2, 2000)
+    assert e.set_loop(loop, tag=1)
+    run(e, 3)
+    assert e.loop_tag == 1
+    e.set_clip(np.zeros(2500, np.float32))
+    run(e, 2)  # the block of the new clip fades the loop out with the old clip
+    assert e.loop_tag is None and not e.set_loop(loop, tag=1)  # the loop's clip is gone
+    assert np.max(np.abs(run(e, 8)[len(h[0]):])) < 1e-6  # silence through the filter, nothing of the loop
+
+
 def test_blocks_read_ahead_switch_filters_and_clips_at_the_next_block_exactly():
     """The engine reads the clip ahead and computes its blocks in batches; filters set at
     irregular blocks (inside and at the edges of those batches, two between one pair of blocks)
@@ -281,6 +331,10 @@ def test_engine_rejects_bad_inputs():
         e.set_filter(np.full((2, 10), np.nan))
     with pytest.raises(ValueError, match="mono"):
         e.set_clip(np.zeros((2, 10)))
+    with pytest.raises(ValueError, match=r"\[2, T\]"):
+        e.set_loop(np.zeros(100), tag=None)
+    with pytest.raises(ValueError, match="non-finite"):
+        e.set_loop(np.full((2, 10), np.inf), tag=None)
     assert np.all(e.render_block() == 0)  # nothing to play yet: silence
 
 
@@ -349,7 +403,7 @@ def test_pose_changes_put_the_pose_filter_in_the_engine(renderer):
     clip = tone(330.0, 0.3, SR // 2)
     state = ViewerState(renderer.bounds, renderer.source)
     engine = StreamEngine(renderer.sample_rate, block=BLOCK)
-    live = LiveAudio(renderer, state, engine, clip)
+    live = LiveAudio(renderer, state, engine, clip, settle=None)  # the filter path alone (tests/test_viewer_refine.py: the rest)
     try:
         first = live.request()
         assert live.worker.wait_idle(30)

@@ -13,7 +13,8 @@ from PySide6 import QtCore, QtWidgets  # noqa: E402
 from avgs.acoustics.points import AudioPoints  # noqa: E402
 from avgs.train.pipeline import quick_config, train_scene  # noqa: E402
 from avgs_viewer import colors  # noqa: E402
-from avgs_viewer.window import MainWindow  # noqa: E402
+from avgs_viewer.refine import SEAM_SECONDS  # noqa: E402
+from avgs_viewer.window import HEARD_TEXT, MainWindow  # noqa: E402
 from rwavs_writer import write_scene  # noqa: E402
 
 pytestmark = pytest.mark.gui
@@ -63,6 +64,15 @@ def wait_render(qtbot, w: MainWindow) -> None:
     QtWidgets.QApplication.processEvents()
 
 
+def wait_refined(qtbot, w: MainWindow) -> None:
+    """Until the pose heard now plays its loop rendered in full, and the panel says so."""
+    def done():
+        live = w.live
+        assert live.heard is not None and live.refined is not None and live.refined.seq == live.seq == live.heard.request.seq
+        assert w.panel.heard.text() == HEARD_TEXT[True]
+    qtbot.waitUntil(done, timeout=60_000)
+
+
 def to_qt(w: MainWindow, display_xy) -> QtCore.QPoint:
     """VTK display pixels (origin bottom left) -> widget coordinates."""
     scale = w.plotter.devicePixelRatioF()
@@ -106,6 +116,40 @@ def test_dragging_the_listener_across_the_source_flips_the_ild(qtbot, window):
     assert f"ILD {after:+.1f} dB" in w.panel.levels.text()  # gain-free: the same number as played
 
 
+def test_a_drag_plays_the_filters_and_the_settled_pose_its_full_render(qtbot, window):
+    """Mouse events on the real window: while the listener is dragged the engine plays each pose's
+    filter; after the release, the loop rendered at the final pose (what avgs render writes)."""
+    w = window
+    wait_refined(qtbot, w)
+    assert w.engine.loop_tag in (None, w.live.seq)  # (the clock may not have pulled its block yet)
+    w.plotter.render()
+    QtWidgets.QApplication.processEvents()
+    start = to_qt(w, w.view.projector().to_display(w.state.listener))
+    qtbot.mousePress(w.plotter, QtCore.Qt.MouseButton.LeftButton, pos=start)
+    assert w.drag.dragging == "listener"
+    for step in range(1, 8):
+        qtbot.mouseMove(w.plotter, pos=start + QtCore.QPoint(6 * step, 3 * step))
+        QtWidgets.QApplication.processEvents()
+    moving = w.live.seq
+    qtbot.waitUntil(lambda: w.engine.wait_live(w.live.seq, timeout=0) is not None, timeout=30_000)
+    assert w.engine.loop_tag is None  # a pose in a drag: its filter, no full render
+    qtbot.mouseRelease(w.plotter, QtCore.Qt.MouseButton.LeftButton, pos=start + QtCore.QPoint(42, 21))
+    assert w.drag.dragging is None
+    wait_render(qtbot, w)
+    wait_refined(qtbot, w)
+    live = w.live
+    assert live.seq >= moving and live.refined.binaural.shape == (2, len(live.clip))
+    qtbot.waitUntil(lambda: w.engine.wait_live(("loop", live.seq), timeout=0) is not None, timeout=10_000)
+    assert w.engine.loop_tag == live.seq  # the simulated sound card's blocks are the full render now
+    pose = live.heard.request.pose
+    assert pose == w.state.pose
+    r, loop = w.renderer, live.clip  # the loop is one period of render() of the clip repeated
+    copies = -(-(r.reach_frames() * r.stft.hop_length + r.stft.n_fft) // len(loop))
+    ref = r.render(pose.listener, pose.yaw, np.tile(loop, copies + 2)).binaural[:, copies * len(loop):(copies + 1) * len(loop)]
+    seam = round(SEAM_SECONDS * r.sample_rate)
+    np.testing.assert_allclose(live.refined.binaural[:, seam:], ref[:, seam:], atol=1e-3 * np.abs(ref).max())
+
+
 def test_window_screenshot_shows_the_vicinity_sets(qtbot, window, tmp_path):
     w = window
     w.state.set_colour_mode("vicinity")
@@ -137,6 +181,7 @@ def test_exports_have_the_right_size(qtbot, window, tmp_path):
     img = sf_image(png)
     size = w.plotter.render_window.GetSize()
     assert img.shape == (2 * size[1], 2 * size[0], 4)
+    wait_refined(qtbot, w)  # (else the settled pose's full render could land between the export and the check)
     wav = w.export_audio(tmp_path / "now.wav")
     audio, sr = sf.read(wav, always_2d=True)
     assert sr == w.renderer.sample_rate and audio.shape == (len(w.live.clip), 2)

@@ -54,7 +54,7 @@ SYNTHESES = {
     "filter": SynthesisConfig(method="filter"),
     f"mid phase, {MID_PHASE_ITERATIONS} iterations (default)": SynthesisConfig(),
     "mid phase, 8 iterations": SynthesisConfig(phase_iterations=8),
-    "mid phase, 16 iterations": SynthesisConfig(phase_iterations=16),
+    "mid phase, 12 iterations": SynthesisConfig(phase_iterations=12),
     "filter phase": SynthesisConfig(phase="filter"),
     "filter phase + 8 iterations": SynthesisConfig(phase="filter", phase_iterations=8),
     "source phase": SynthesisConfig(phase="source"),
