@@ -10,6 +10,9 @@ events sent through XTEST (:mod:`avgs_viewer.xinput`, what ``xdotool`` uses). Me
   with the released pose's filter leaves the audio engine (the sound card's callback, or
   the simulated clock's where there is no card: the same code either way). Each drag
   starts from a standing window; no wait for an idle worker.
+- **drag to full render** (a scene whose render is not its filter: :mod:`avgs_viewer.refine`):
+  from sending the release to the first block wholly of the loop rendered in full at the
+  released pose; the next drag waits for it (or 10 s).
 - **idle CPU**: the process's CPU time (all threads) over a few seconds with nothing
   touched, sound playing (and, reported beside it, paused).
 - **orbit**: a real left-button drag on empty space of the view for a few seconds,
@@ -133,6 +136,8 @@ def drive(w, gui: GuiCall, x, n: int = 30, idle_s: float = 5.0, orbit_s: float =
     centre = bounds.mean(axis=0)
     radius = 0.28 * float(min(bounds[1, :2] - bounds[0, :2]))
     latency, delivery, submitted, ready, missed, offsets = [], [], [], [], 0, []
+    refines = gui(lambda: w.live.refiner is not None)
+    full, full_missed = [], 0
     paints0 = gui(lambda: w.plotter.frames)
     for i in range(n):
         angle = 2 * np.pi * i / max(n, 1) * 2.3 + 0.4
@@ -161,6 +166,12 @@ def drive(w, gui: GuiCall, x, n: int = 30, idle_s: float = 5.0, orbit_s: float =
             submitted.append(heard.request.submitted_at - t_send)
             ready.append(heard.ready_at - t_send)
             offsets.append(float(np.linalg.norm(listener[:2] - target[:2])))
+        if refines:
+            t_full = w.engine.wait_live(("loop", seq), timeout=10)
+            if t_full is None or w.live.seq != seq:
+                full_missed += 1
+            else:
+                full.append(t_full - t_send)
         time.sleep(float(rng.uniform(0.15, 0.4)))  # the user looks, listens, grabs again
     paints = gui(lambda: list(w.plotter.paint_seconds)[-(w.plotter.frames - paints0):] if w.plotter.frames > paints0 else [])
     time.sleep(1.0)
@@ -194,6 +205,7 @@ def drive(w, gui: GuiCall, x, n: int = 30, idle_s: float = 5.0, orbit_s: float =
     gui(lambda: (w.view.camera_home(), w.plotter.render()))
     followed = gui(lambda: bool(w._follower))
     return {"pointer_follow": followed, "drag_to_audio": _summary(latency), "release_delivery": _summary(delivery),
+            "drag_to_full_render": _summary(full) if refines else None, "full_render_missed": full_missed,
             "pose_submitted": _summary(submitted), "filter_ready": _summary(ready), "paint": _summary(paints), "drags": n,
             "missed": missed, "max_handle_offset": max(offsets) if offsets else None,
             "idle_cpu_playing": idle_playing, "idle_cpu_paused": idle_paused,
@@ -252,7 +264,9 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, idle_s: float = 5.0
                     "view": [w.plotter.width(), w.plotter.height()], "window": [w.width(), w.height()],
                     "points": int(len(w.renderer.points)), "drawn": int(len(w.view.drawn)),
                     "audio": w.output.message or "sound card", "block": w.engine.block,
-                    "sample_rate": w.engine.sample_rate, "filter_taps": int(w.live.heard.result.impulse.shape[1])})
+                    "sample_rate": w.engine.sample_rate, "filter_taps": int(w.live.heard.result.impulse.shape[1]),
+                    "clip_seconds": len(w.live.clip) / w.engine.sample_rate,
+                    "settle_s": None if w.live.refiner is None else w.live.refiner.settle})
                 with XInput(display) as x:
                     box["result"] = drive(w, gui, x, n=n, idle_s=idle_s, orbit_s=orbit_s)
             except BaseException as exc:
@@ -285,7 +299,8 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, idle_s: float = 5.0
         f"Scene: `{scene_path}`, {setup['points']} audio points ({setup['drawn']} drawn); window "
         f"{setup['window'][0]}x{setup['window'][1]}, 3D view {setup['view'][0]}x{setup['view'][1]}  ",
         f"Audio: {setup['audio']}; blocks of {setup['block']} samples ({block_ms:.1f} ms), "
-        f"pose filters of {setup['filter_taps']} taps  ",
+        f"pose filters of {setup['filter_taps']} taps, a {setup['clip_seconds']:.1f} s loop"
+        + ("; a settled pose plays its loop rendered in full" if setup["settle_s"] is not None else "") + "  ",
         "Drags: " + ("followed through the X pointer ahead of Qt's event queue (avgs_viewer/pointer.py; "
                      "`AVGS_VIEWER_NO_POINTER=1` measures without)" if r["pointer_follow"]
                      else "through Qt's mouse events only (no X pointer to follow)"),
@@ -299,6 +314,11 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, idle_s: float = 5.0
         f"| drag to audio | median {lat['median_ms']:.1f} ms, p95 {lat['p95_ms']:.1f} ms, max {lat['max_ms']:.1f} ms | "
         f"{lat['n']} of {r['drags']} drags ({r['missed']} missed); from sending the release (XTEST) to the first "
         f"block of the released pose's filter leaving the audio engine |",
+        *([] if not (r["drag_to_full_render"] or {}).get("n") else [
+            f"| drag to full render | median {r['drag_to_full_render']['median_ms']:.0f} ms, p95 "
+            f"{r['drag_to_full_render']['p95_ms']:.0f} ms | {r['drag_to_full_render']['n']} drags "
+            f"({r['full_render_missed']} missed); from sending the release to the first block wholly of the loop "
+            f"rendered in full at the released pose (settles {setup['settle_s']:.2f} s first; avgs_viewer/refine.py) |"]),
         *(f"| {name} | median {r[key]['median_ms']:.1f} ms, p95 {r[key]['p95_ms']:.1f} ms | {note} |"
           for name, key, note in (
               ("release delivered to Qt", "release_delivery", "from sending it to the view's event filter"),

@@ -381,7 +381,7 @@ class ListenerInset:
                  post: Callable[[Callable[[], None]], None] = _run_now, timer=None, settle_ms: int = 300,
                  size: tuple[int, int] = (192, 144), corner: tuple[float, float] = (0.74, 0.01),
                  extent: float = 0.25):
-        from .worker import RenderWorker
+        from .newest import RenderWorker
 
         self.plotter, self.state = plotter, state
         self.size = size

@@ -26,6 +26,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .newest import RenderWorker
+
 SETTLE_SECONDS = 0.25
 "A pose held this long (no newer pose asked for) is rendered in full."
 
@@ -113,8 +115,6 @@ class LoopRefiner:
         self._current, self._deliver = current, deliver
         self.cancelled = 0
         "Refinements given up because a newer pose came (while settling or rendering)."
-        from .worker import RenderWorker  # (worker imports this module)
-
         self.worker = RenderWorker(self._run, self._done, lambda seq, job, exc: on_error and on_error(exc),
                                    name="avgs-refine")
 

@@ -33,6 +33,20 @@ def test_the_bench_drives_the_real_window_and_writes_its_report(tmp_path):
     assert "drag end ->" not in text  # the state-driven numbers are gone
 
 
+def test_on_a_one_source_scene_the_bench_times_the_full_render_after_each_release(tmp_path, one_source_ckpt):
+    out = tmp_path / "viewer.md"
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    code = ("from avgs_viewer.bench import run_viewer_bench; "
+            f"r = run_viewer_bench({str(one_source_ckpt)!r}, {str(out)!r}, n=2, idle_s=0.5, orbit_s=0.5); "
+            "f = r['drag_to_full_render']; print(r['drag_to_audio']['n'], f['n'], r['full_render_missed'], "
+            "int(f['min_ms'] > r['settle_s'] * 1e3))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    heard, full, missed, after_settle = (int(v) for v in proc.stdout.split()[-4:])
+    assert heard == 2 and full == 2 and missed == 0 and after_settle == 1  # never before the pose settled
+    assert "| drag to full render | median " in out.read_text()
+
+
 def test_a_bad_drag_count_is_one_clear_error(tmp_path, capsys):
     from avgs_viewer.app import main
 

@@ -11,7 +11,7 @@ import pytest
 from avgs_viewer import colors
 from avgs_viewer.drag import DragController, pick_handle, ray_plane_z
 from avgs_viewer.state import ColourMode, ViewerState
-from avgs_viewer.worker import RenderWorker
+from avgs_viewer.newest import RenderWorker
 
 BOUNDS = np.array([[0.0, 0.0, 0.0], [5.0, 4.0, 3.0]])
 
