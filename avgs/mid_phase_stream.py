@@ -16,10 +16,11 @@ same waveform from blocks of any size:
 So the concatenated output equals ``render(...).binaural`` (to float32 rounding, which the
 iterations carry along: within a few times the render's own distance from float64), and
 lags the input by at most :attr:`MidPhaseStream.latency` samples: the margin and one block,
-0.44 s with the default 12 iterations. Where that is too long (an interactive player),
+0.39 s with the default 10 iterations. Where that is too long (an interactive player),
 the pose's filter streams with no more than a convolution block of delay
-(``SynthesisConfig(method="filter")``, what the explorer plays) and the filter's phase
-with 29 ms (:class:`avgs.streaming.BinauralStream`).
+(``SynthesisConfig(method="filter")``, what the explorer plays while a pose changes; a
+settled pose it renders in full with this stream: :mod:`avgs_viewer.refine`) and the
+filter's phase with 29 ms (:class:`avgs.streaming.BinauralStream`).
 """
 
 from __future__ import annotations

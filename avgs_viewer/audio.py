@@ -430,8 +430,9 @@ class StreamEngine:
             self._loop, self.loop_tag = None, None
             return
         n = self.block
-        if mine:
-            part = loop[0][:, (pos + np.arange(n)) % loop[0].shape[1]]  # [2, n], in step with the clip
+        if mine:  # [2, n], in step with the clip
+            y_loop, T = loop[0], loop[0].shape[1]
+            part = y_loop[:, pos:pos + n] if pos + n <= T else y_loop[:, (pos + np.arange(n)) % T]
         else:  # (not reached: a loop's clip stays until it has faded out) fade to the filter's output
             part = np.zeros_like(y)
         if target == self._loop_mix:  # fully on
