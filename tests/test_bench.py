@@ -82,3 +82,36 @@ def test_simulator_points_on_a_generated_scene(tmp_path):
     rows = simulator_points(root / "o", scene, orders=(0, 1), ray_tracing=(False,), max_poses=1)
     assert [r["label"] for r in rows] == ["simulator order 0", "simulator order 1"]
     assert all(r["latency_ms"] > 0 and r["MAG"] >= 0 and r["ENV"] >= 0 for r in rows)
+
+
+def test_interleaved_timing_takes_turns_in_blocks():
+    from avgs.bench.timing import time_interleaved
+
+    calls = []
+    t = time_interleaved({k: (lambda i, k=k: calls.append((k, i))) for k in "abc"}, repeats=5, block=2)
+    # three rounds; each function: one untimed call, then two timed ones, on the same indices
+    assert calls == [(k, i) for r in range(3) for k in "abc" for i in (2 * r, 2 * r, 2 * r + 1)]
+    assert {k: v.n for k, v in t.items()} == {"a": 5, "b": 5, "c": 5}
+
+
+def test_the_syntheses_are_timed_on_the_same_poses(one_source_ckpt):
+    from avgs.bench.speed_error import synthesis_latencies
+    from avgs.inference import SceneRenderer
+
+    seen = []
+
+    class Spy:
+        def __init__(self, r, name):
+            self.r, self.name, self.sample_rate = r, name, r.sample_rate
+            self.bounds, self.source = r.bounds, r.source
+
+        def render(self, listener, yaw, mono):
+            seen.append((self.name, tuple(listener), yaw))
+            return self.r.render(listener, yaw, mono)
+
+    r = SceneRenderer.load(one_source_ckpt)
+    t = synthesis_latencies({"x": Spy(r, "x"), "y": Spy(r, "y")}, repeats=8)
+    assert t["x"].n == t["y"].n == 8
+    xs = [s[1:] for s in seen if s[0] == "x"]
+    assert xs == [s[1:] for s in seen if s[0] == "y"]  # the same poses, in the same order
+    assert len(set(xs)) == 8  # (the untimed call of a block repeats its first pose)

@@ -60,6 +60,30 @@ def time_calls(fn: Callable[[], object], repeats: int = 20, warmup: int = 2, syn
     return Timing(tuple(samples))
 
 
+def time_interleaved(fns: dict[str, Callable[[int], object]], repeats: int = 20, block: int = 4,
+                     sync: Callable[[], None] | None = None) -> dict[str, Timing]:
+    """Each of ``fns`` timed ``repeats`` times, taking turns in blocks: every round, each function
+    runs one untimed call (its caches warm again after the others') and then ``block`` timed
+    ones. A shared machine's load moves on the scale of seconds, so it falls on all of them
+    alike and their ratios hold, while each timed call runs as it would repeated alone.
+    ``fns[name](i)`` is called with the index of the call within its block's round (the same
+    ``i`` for every function in a round: give them the same inputs)."""
+    samples: dict[str, list[float]] = {name: [] for name in fns}
+    rounds = -(-repeats // block)
+    for r in range(rounds):
+        for name, fn in fns.items():
+            fn(r * block)  # untimed: warms what the other functions' calls evicted
+            if sync:
+                sync()
+            for j in range(block):
+                t0 = time.perf_counter()
+                fn(r * block + j)
+                if sync:
+                    sync()
+                samples[name].append(time.perf_counter() - t0)
+    return {name: Timing(tuple(v[:repeats])) for name, v in samples.items()}
+
+
 class Stopwatch:
     """Accumulates named sections: ``with sw("vicinity"): ...``; ``sw.timings()`` per name."""
 
