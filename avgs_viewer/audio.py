@@ -142,6 +142,16 @@ class _Once:
         self.pos = 0
 
 
+def _binaural(x, what: str, length: str, items: str) -> np.ndarray:
+    """``x`` as a contiguous float32 [2, n] array with n > 0 and finite values, else a ValueError naming ``what``."""
+    y = np.ascontiguousarray(x, dtype=np.float32)
+    if y.ndim != 2 or y.shape[0] != 2 or y.shape[1] == 0:
+        raise ValueError(f"{what} must be [2, {length}] with {length} > 0, got shape {y.shape}")
+    if not np.all(np.isfinite(y)):
+        raise ValueError(f"{what} has non-finite {items}")
+    return y
+
+
 def _block_convolver():
     from avgs.acoustics.convolution import BlockConvolver
 
@@ -276,11 +286,7 @@ class StreamEngine:
     def set_filter(self, impulse: np.ndarray, tag=None) -> None:
         """Play through ``impulse [2, L]`` (left, right) from the next block on (a rendered loop
         playing fades out over that block)."""
-        h = np.ascontiguousarray(impulse, dtype=np.float32)
-        if h.ndim != 2 or h.shape[0] != 2 or h.shape[1] == 0:
-            raise ValueError(f"binaural filter must be [2, L] with L > 0, got shape {h.shape}")
-        if not np.all(np.isfinite(h)):
-            raise ValueError("binaural filter has non-finite taps")
+        h = _binaural(impulse, "binaural filter", "L", "taps")
         with self._lock:
             if self._conv is None:
                 self._conv = self._convolver(h, self.block) if self._convolver else \
@@ -304,11 +310,7 @@ class StreamEngine:
         plays nothing, when ``tag`` is not the newest filter's or the clip is not the one
         playing (``clip``: the clip it was rendered from; a loop for an older pose or clip).
         """
-        y = np.ascontiguousarray(binaural, dtype=np.float32)
-        if y.ndim != 2 or y.shape[0] != 2 or y.shape[1] == 0:
-            raise ValueError(f"a rendered loop must be [2, T] with T > 0, got shape {y.shape}")
-        if not np.all(np.isfinite(y)):
-            raise ValueError("a rendered loop has non-finite samples")
+        y = _binaural(binaural, "a rendered loop", "T", "samples")
         with self._lock:
             playing = self._clip
             if (tag != self._filter_tag or self._next_clip is not None or playing is None
@@ -333,11 +335,7 @@ class StreamEngine:
         while paused (it was asked for); after it the clip fades back in where it stopped, or
         stays paused. A second call replaces a signal still playing.
         """
-        x = np.asarray(signal, dtype=np.float32)
-        if x.ndim != 2 or x.shape[0] != 2 or x.shape[1] == 0:
-            raise ValueError(f"a signal to play once must be [2, L] with L > 0, got shape {x.shape}")
-        if not np.all(np.isfinite(x)):
-            raise ValueError("a signal to play once has non-finite samples")
+        x = _binaural(signal, "a signal to play once", "L", "samples")
         peak = float(np.max(np.abs(x)))
         gain = float(self.volume) * (self.makeup_gain or 1.0)
         if peak * gain > ONCE_PEAK:

@@ -8,7 +8,6 @@ runs next. The explorer's filter path (:mod:`avgs_viewer.worker`), its full-rend
 from __future__ import annotations
 
 import threading
-import time
 from typing import Any, Callable
 
 
@@ -49,14 +48,8 @@ class RenderWorker:
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
         """Block until nothing is queued or running; False on timeout."""
-        deadline = time.monotonic() + timeout
         with self._cond:
-            while self._has_request or self._busy:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cond.wait(left)
-        return True
+            return self._cond.wait_for(lambda: not (self._has_request or self._busy), timeout)
 
     def close(self, timeout: float = 10.0) -> None:
         """Stop after the render in progress (queued requests are dropped)."""

@@ -139,16 +139,8 @@ class MapWorker:
             return self._pending is None and self._running is None
 
     def wait_idle(self, timeout: float = 30.0) -> bool:
-        import time
-
-        deadline = time.monotonic() + timeout
         with self._cond:
-            while self._pending is not None or self._running is not None:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cond.wait(left)
-        return True
+            return self._cond.wait_for(lambda: self._pending is None and self._running is None, timeout)
 
     def close(self, timeout: float = 10.0) -> None:
         with self._cond:

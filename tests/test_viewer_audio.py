@@ -17,6 +17,7 @@ from avgs_viewer import audio
 from avgs_viewer.audio import AudioOutput, ClipSpectrum, StreamEngine, filter_levels
 from avgs_viewer.state import ViewerState
 from avgs_viewer.worker import LiveAudio
+from engine_blocks import pull as pull_blocks
 
 SR = 22050
 BLOCK = 256
@@ -38,12 +39,7 @@ def decaying(seed: int, taps: int = 700, left: float = 1.0, right: float = 0.5) 
 
 def run(engine: StreamEngine, blocks: int) -> np.ndarray:
     """Pump the callback like a sound card would: [blocks * BLOCK, 2]."""
-    out = np.empty((BLOCK, 2), dtype=np.float32)
-    chunks = []
-    for _ in range(blocks):
-        engine.callback(out, BLOCK, None, None)
-        chunks.append(out.copy())
-    return np.concatenate(chunks)
+    return pull_blocks(engine, blocks, BLOCK)
 
 
 def reference(clip: np.ndarray, h: np.ndarray, n: int) -> np.ndarray:

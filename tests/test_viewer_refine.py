@@ -15,6 +15,7 @@ from avgs_viewer.audio import StreamEngine
 from avgs_viewer.refine import SEAM_SECONDS, refines, render_loop
 from avgs_viewer.state import ViewerState
 from avgs_viewer.worker import LiveAudio
+from engine_blocks import pull as pull_blocks
 
 BLOCK = 256
 DEMO = "assets/demo/scene.ckpt"
@@ -43,12 +44,8 @@ def pump_until(engine: StreamEngine, done, timeout: float = 60.0) -> None:
 
 
 def run(engine: StreamEngine, blocks: int) -> np.ndarray:
-    out = np.empty((BLOCK, 2), np.float32)
-    chunks = []
-    for _ in range(blocks):
-        engine.callback(out, BLOCK, None, None)
-        chunks.append(out.copy())
-    return np.concatenate(chunks)
+    """Pump the callback like a sound card would: [blocks * BLOCK, 2]."""
+    return pull_blocks(engine, blocks, BLOCK)
 
 
 def periodic_render(r: SceneRenderer, listener, yaw: float, loop: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ from avgs_viewer.audio import ONCE_PEAK, StreamEngine
 from avgs_viewer.drag import DragController
 from avgs_viewer.response import DECAY_FLOOR_DB, ResponseSummary, column_edges, min_max_columns
 from avgs_viewer.state import ViewerState
+from engine_blocks import pull as pull_blocks
 
 SR = 22050
 BLOCK = 256
@@ -78,12 +79,8 @@ def test_summary_rejects_bad_responses():
 
 # ---------------------------------------------------------------------- playing once
 def pull(engine: StreamEngine, blocks: int) -> np.ndarray:
-    out = np.empty((BLOCK, 2), np.float32)
-    chunks = []
-    for _ in range(blocks):
-        engine.callback(out, BLOCK, None, None)
-        chunks.append(out.copy())
-    return np.concatenate(chunks)
+    """Pump the callback like a sound card would: [blocks * BLOCK, 2]."""
+    return pull_blocks(engine, blocks, BLOCK)
 
 
 def engine_playing(clip: np.ndarray, h: np.ndarray) -> StreamEngine:
