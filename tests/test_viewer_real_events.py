@@ -224,7 +224,8 @@ def test_a_handle_drag_draws_cheap_frames_then_the_full_one(qtbot, window, x):
         qtbot.wait(20)
     qtbot.waitUntil(lambda: w.state.listener[:2] == pytest.approx(target[:2], abs=0.1), timeout=5000)
     assert w.plotter.render_window.GetMultiSamples() == 0
-    assert blue_pixels_near(w, w.state.listener) > 20  # drawn where the pointer holds it
+    # drawn where the pointer holds it (within 12 px: the frame may show the move before the last)
+    assert blue_pixels_near(w, w.state.listener, reach=12) > 20
     x.release(*end)
     qtbot.waitUntil(lambda: w.drag.dragging is None, timeout=5000)
     assert w.plotter.render_window.GetMultiSamples() == idle_samples
