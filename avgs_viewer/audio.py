@@ -433,16 +433,17 @@ class StreamEngine:
             part = y_loop[:, pos:pos + n] if pos + n <= T else y_loop[:, (pos + np.arange(n)) % T]
         else:  # (not reached: a loop's clip stays until it has faded out) fade to the filter's output
             part = np.zeros_like(y)
-        if target == self._loop_mix:  # fully on
+        if target == self._loop_mix:  # wholly the loop
             y[:] = part
-        else:
+            if self.loop_tag != loop[2]:
+                self._fresh_loop = loop[2]  # its first block wholly out (wait_live)
+            self.loop_tag = loop[2]
+        else:  # crossfading into it or out of it
             ramp = np.linspace(self._loop_mix, target, n + 1, dtype=np.float32)[1:]  # [n]
             y *= 1.0 - ramp
             y += part * ramp
-        if target == 1.0 and self._loop_mix < 1.0:
-            self._fresh_loop = loop[2]
+            self.loop_tag = None
         self._loop_mix = target
-        self.loop_tag = loop[2] if on else None
 
     def render_block(self) -> np.ndarray:
         """The next :attr:`block` output samples, [block, 2] float32 (advances the engine)."""

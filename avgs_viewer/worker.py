@@ -181,11 +181,11 @@ class LiveAudio:
         clip = self.engine.clip
         self.engine.set_filter(result.impulse, tag=request.seq)
         ready = time.perf_counter()
-        if self.refiner is not None:
-            self.refiner.submit(request.seq, request.pose, clip, ready)
         levels = filter_levels(result.impulse, self.engine.spectrum, self.engine.makeup_gain or 1.0)
         heard = Heard(request, result, levels, ready)
         self.heard = heard
+        if self.refiner is not None:  # (after self.heard: the loop is taken only for the pose heard)
+            self.refiner.submit(request.seq, request.pose, clip, ready)
         if self._on_result is not None:
             self._on_result(heard)
 

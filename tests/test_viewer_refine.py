@@ -89,7 +89,7 @@ def test_a_settled_pose_plays_its_loop_and_a_move_goes_back_to_the_filter(render
         np.testing.assert_allclose(refined.binaural[:, seam:], ref[:, seam:], atol=2e-4 * np.abs(ref).max())
         np.testing.assert_array_equal(live.heard_clip(), refined.binaural)  # what the export writes
 
-        run(engine, 1)  # the crossfade block
+        run(engine, 2)  # the block crossfading into the loop, then one wholly of it
         assert engine.loop_tag == first
         played = engine.blocks
         y = run(engine, 12)
