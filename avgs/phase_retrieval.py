@@ -148,19 +148,20 @@ def _iterate(grid: FrameGrid, start: torch.Tensor, target: torch.Tensor, length:
         if not phase:
             return grid.synthesise(start)
         return start * (start * start.conj()).real.clamp_min(tiny).rsqrt_()
+
+    def consistent(z: torch.Tensor):
+        """(the STFT of the padded signal z [..., N, F], 1 / its magnitudes, without abs()'s hypot)."""
+        rebuilt = grid.analyse(grid.pad_ends(z, length))
+        return rebuilt, (rebuilt * rebuilt.conj()).real.clamp_min(tiny).rsqrt_()
+
     z, previous = grid.synthesise(start), None  # padded signals: the current guess's, the last projection's
-    for k in range(iterations):
-        rebuilt = grid.analyse(grid.pad_ends(z, length))  # [..., N, F] a consistent spectrogram
-        scale = (rebuilt * rebuilt.conj()).real.clamp_min(tiny).rsqrt_()  # 1 / |rebuilt|, without abs()'s hypot
-        last = k == iterations - 1
-        if last and phase:
-            return rebuilt * scale
+    for _ in range(iterations - 1):
+        rebuilt, scale = consistent(z)
         projected = grid.synthesise(rebuilt * scale.mul_(target))  # the target magnitudes with rebuilt's phase
-        if last:
-            return projected
         z = projected if previous is None else torch.lerp(previous, projected, 1.0 + momentum)
         previous = projected
-    raise AssertionError("unreachable")
+    rebuilt, scale = consistent(z)
+    return rebuilt * scale if phase else grid.synthesise(rebuilt * scale.mul_(target))
 
 
 def retrieve_phase(target: torch.Tensor, start: torch.Tensor, length: int, iterations: int, momentum: float = 0.99,

@@ -60,7 +60,7 @@ class BinauralStream:
         if stft.win_length != stft.n_fft:
             raise ValueError(f"streaming needs win_length == n_fft, got {stft.win_length} and {stft.n_fft}")
         self.stft = stft
-        self.masks = self._checked(masks)
+        self.masks = one_pose(masks, self.stft, torch.float64)
         "The pose's masks in float64, on the CPU."
         self._filter = ConvolutionStream(np.asarray(impulse, dtype=np.float32), block)
         self._tail_state = None  # [1, F] float64 tensor: decayed power of the frames so far
@@ -80,9 +80,6 @@ class BinauralStream:
         self._paired = 0  # input samples whose filtered samples are in
         self._started = False
         self._done = False
-
-    def _checked(self, masks: Masks) -> Masks:
-        return one_pose(masks, self.stft, torch.float64)
 
     def set_pose(self, masks: Masks, impulse: np.ndarray) -> None:
         """Go on with another pose of the same scene (e.g. from another thread, between blocks).

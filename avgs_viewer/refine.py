@@ -55,6 +55,15 @@ def refines(renderer: Any) -> bool:
     return s.method == "spectrogram" and (s.phase == "mid" or (s.phase == "filter" and s.iterations == 0))
 
 
+def periods_before(renderer: Any, period: int) -> int:
+    """Periods of a loop ``period`` samples long that the one kept needs before it: those that
+    reach it through the tail, the STFT window and the phase iterations (:meth:`SceneRenderer.reach_frames
+    <avgs.inference.SceneRenderer.reach_frames>`)."""
+    stft = renderer.stft
+    reach = renderer.reach_frames() * stft.hop_length + stft.n_fft  # input samples an output sample hears back
+    return math.ceil(reach / period)
+
+
 def render_loop(renderer: Any, listener, yaw: float, source, loop: np.ndarray,
                 cancelled: Callable[[], bool] = lambda: False, chunk: int = CHUNK) -> np.ndarray | None:
     """``[2, T]`` float32: the endlessly repeated ``loop [T]`` rendered at the pose, one period
@@ -65,9 +74,7 @@ def render_loop(renderer: Any, listener, yaw: float, source, loop: np.ndarray,
     if loop.ndim != 1 or T == 0:
         raise ValueError(f"a loop must be mono [T] with T > 0, got shape {loop.shape}")
     stream = renderer.stream(listener, yaw, source=source, block_frames=BLOCK_FRAMES)
-    stft = renderer.stft
-    reach = renderer.reach_frames() * stft.hop_length + stft.n_fft  # input samples an output sample hears back
-    copies = math.ceil(reach / T)  # copies before the one kept
+    copies = periods_before(renderer, T)
     seam = min(T // 4, round(SEAM_SECONDS * renderer.sample_rate))
     begin, end = copies * T, (copies + 1) * T + seam  # the kept period and the next one's start, in output samples
     pieces, have, fed = [], 0, 0

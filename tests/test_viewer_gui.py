@@ -13,7 +13,7 @@ from PySide6 import QtCore, QtWidgets  # noqa: E402
 from avgs.acoustics.points import AudioPoints  # noqa: E402
 from avgs.train.pipeline import quick_config, train_scene  # noqa: E402
 from avgs_viewer import colors  # noqa: E402
-from avgs_viewer.refine import SEAM_SECONDS  # noqa: E402
+from avgs_viewer.refine import SEAM_SECONDS, periods_before  # noqa: E402
 from avgs_viewer.window import HEARD_TEXT, MainWindow  # noqa: E402
 from rwavs_writer import write_scene  # noqa: E402
 
@@ -144,7 +144,7 @@ def test_a_drag_plays_the_filters_and_the_settled_pose_its_full_render(qtbot, wi
     pose = live.heard.request.pose
     assert pose == w.state.pose
     r, loop = w.renderer, live.clip  # the loop is one period of render() of the clip repeated
-    copies = -(-(r.reach_frames() * r.stft.hop_length + r.stft.n_fft) // len(loop))
+    copies = periods_before(r, len(loop))
     ref = r.render(pose.listener, pose.yaw, np.tile(loop, copies + 2)).binaural[:, copies * len(loop):(copies + 1) * len(loop)]
     seam = round(SEAM_SECONDS * r.sample_rate)
     np.testing.assert_allclose(live.refined.binaural[:, seam:], ref[:, seam:], atol=1e-3 * np.abs(ref).max())

@@ -3,7 +3,6 @@ thread and played by the engine in place of the pose's filter, on a trained one-
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -12,7 +11,7 @@ import pytest
 from avgs.config import SynthesisConfig
 from avgs.inference import SceneRenderer
 from avgs_viewer.audio import StreamEngine
-from avgs_viewer.refine import SEAM_SECONDS, refines, render_loop
+from avgs_viewer.refine import SEAM_SECONDS, periods_before, refines, render_loop
 from avgs_viewer.state import ViewerState
 from avgs_viewer.worker import LiveAudio
 from engine_blocks import pull as pull_blocks
@@ -51,7 +50,7 @@ def run(engine: StreamEngine, blocks: int) -> np.ndarray:
 def periodic_render(r: SceneRenderer, listener, yaw: float, loop: np.ndarray) -> np.ndarray:
     """One period of ``render`` of the loop repeated, with as many periods before it as the synthesis reaches."""
     T = len(loop)
-    copies = math.ceil((r.reach_frames() * r.stft.hop_length + r.stft.n_fft) / T)
+    copies = periods_before(r, T)
     return r.render(listener, yaw, np.tile(loop, copies + 2)).binaural[:, copies * T:(copies + 1) * T]
 
 

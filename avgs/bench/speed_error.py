@@ -295,7 +295,7 @@ def bench_scene(scene_dir, work: Path, *, iterations: int, n_points: int, repeat
         say(f"{scene.name}: {label}: MAG {s['MAG']:.3f}, {t.median_ms:.2f} ms, {row['ckpt_bytes'] / 1e6:.2f} MB")
     rows += budget_rows[1:]  # 'all points' is the vicinity row already
 
-    # The syntheses: speed against error of each, timed taking turns pose by pose (with the
+    # The syntheses: speed against error of each, timed taking turns in blocks of poses (with the
     # default: the reference row's time is that one), so that their ratios hold on a busy machine.
     renderers = {label: SceneRenderer.load(models[ref_v], synthesis=synthesis) for label, synthesis in SYNTHESES.items()}
     timings = synthesis_latencies(renderers, repeats)

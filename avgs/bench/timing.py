@@ -66,8 +66,8 @@ def time_interleaved(fns: dict[str, Callable[[int], object]], repeats: int = 20,
     runs one untimed call (its caches warm again after the others') and then ``block`` timed
     ones. A shared machine's load moves on the scale of seconds, so it falls on all of them
     alike and their ratios hold, while each timed call runs as it would repeated alone.
-    ``fns[name](i)`` is called with the index of the call within its block's round (the same
-    ``i`` for every function in a round: give them the same inputs)."""
+    ``fns[name](i)`` is called with the call's index i (the untimed one repeats its block's
+    first; every function gets the same i's in the same order: give them the same inputs)."""
     samples: dict[str, list[float]] = {name: [] for name in fns}
     rounds = -(-repeats // block)
     for r in range(rounds):

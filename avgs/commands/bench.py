@@ -209,8 +209,8 @@ def run(args: argparse.Namespace) -> int:
         f"CPU figures use {args.threads} torch threads; timings are medians over repeats on a shared machine: compare "
         "numbers from one run only.",
         "The syntheses ('AV-GS synthesis' rows and the default's, the reference vicinity row) are timed taking turns "
-        "pose by pose, so their ratios hold while the machine's load moves; each call then finds colder caches than "
-        "one synthesis repeated, so they read higher than a row timed alone (the other rows).",
+        "in blocks of four poses, each block after one untimed call, so their ratios hold while the machine's load "
+        "moves; the other rows are timed one after the other.",
         "Bench models skip stage 1: G_a starts from points uniform in the box around the listeners and the source "
         "(widened by 0.3 normalised units) with random alpha, and stage 2 runs the given iterations (the paper: 40k). "
         "Their errors rank settings against each other; they are not the paper's numbers.",
