@@ -62,7 +62,8 @@ import torch
 from avgs import dsp
 from avgs.data.frame import signed_direction
 from avgs.acoustics.impulse_response import TailShaper, convolve, impulse_response
-from avgs.acoustics.synthesis import Masks, ear_gains, ear_spectrogram, mid_phase_waveform, unit_phase, waveform
+from avgs.acoustics.synthesis import (Masks, SourceParts, ear_gains, ear_spectrogram, mid_phase_waveform, source_parts,
+                                      unit_phase, waveform)
 from avgs.checkpoint import config_of, load_checkpoint, stft_of
 from avgs.config import SynthesisConfig
 from avgs.data.frame import SceneFrame
@@ -193,6 +194,7 @@ class SceneRenderer:
         "The training source in the model's normalised frame."
         self._lock = threading.RLock()
         self._source_cache: tuple[tuple, tuple] | None = None  # (key, (C_S, idx))
+        self._clip: tuple[np.ndarray, torch.Tensor | None, SourceParts] | None = None  # (input, decay, its parts)
         self._warned_one_source = False
         rir = ckpt.get("rir") or {}
         self._training_sources = (None if rir.get("sources") is None else
@@ -532,8 +534,9 @@ class SceneRenderer:
         for lo, hi, start, stop in pieces:
             piece = torch.from_numpy(x[start:stop] / np.float32(scale)).to(self.device)  # [stop - start]
             if mid:  # one retrieved phase for both ears (the default)
-                wave, ears = mid_phase_waveform(dsp.stft(piece[None], self.stft), m32, stop - start, self.stft,
-                                                synthesis, start // self.stft.hop_length)
+                parts = self._clip_parts(x, piece, m32.decay) if stop - start == x.size else None
+                wave, ears = mid_phase_waveform(None if parts is not None else dsp.stft(piece[None], self.stft), m32, stop - start,
+                                                self.stft, synthesis, start // self.stft.hop_length, parts)
                 if magnitudes:
                     mags = np.ascontiguousarray((ears[0].double().cpu().numpy() * scale).astype(np.float32))
                 y[:, lo:hi] = wave[0, :, lo - start : hi - start].float().cpu().numpy()
@@ -557,6 +560,18 @@ class SceneRenderer:
             top = max(top, _peak(y[:, lo:hi]))  # NaN once any sample is not finite
             del piece, ears, wave
         return y, mags, top
+
+    def _clip_parts(self, x: np.ndarray, unit: torch.Tensor, decay: torch.Tensor | None) -> SourceParts:
+        """:func:`~avgs.acoustics.synthesis.source_parts` of the whole input ``x`` (``unit``: it at unit
+        peak, [T]), kept for the next render of the same clip: the explorer and the benchmarks
+        hear one clip from many poses, and only the pose's part of the synthesis changes."""
+        kept = self._clip
+        if (kept is not None and kept[0].shape == x.shape and np.array_equal(kept[0], x)
+                and (kept[1] is None) == (decay is None) and (decay is None or torch.equal(kept[1], decay))):
+            return kept[2]
+        parts = source_parts(dsp.stft(unit[None], self.stft), decay)
+        self._clip = (x.copy(), None if decay is None else decay.clone(), parts)
+        return parts
 
     def _impulse(self, m: Masks) -> np.ndarray:
         """The binaural impulse response ``[2, L]`` float32 of one pose's masks."""

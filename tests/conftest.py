@@ -76,15 +76,13 @@ def quick_presets(tmp_path_factory) -> dict[str, Path]:
     }
 
 
-@pytest.fixture(scope="session")
-def tail_renderer():
-    """A renderer whose tail is loud and pose-dependent (random head weights, RT60 0.2-0.8 s)."""
+def _tail_checkpoint() -> dict:
+    """A checkpoint whose tail is loud and pose-dependent (random head weights, RT60 0.2-0.8 s)."""
     import numpy as np
     import torch
 
     from avgs.checkpoint import untrained_checkpoint
     from avgs.data.frame import SceneFrame
-    from avgs.inference import SceneRenderer
 
     room = np.array([[0.0, 0.0, 0.0], [6.0, 4.0, 3.0]])
     pts = np.random.default_rng(0).uniform(room[0], room[1], size=(600, 3))
@@ -94,4 +92,18 @@ def tail_renderer():
     state["reverb.head.weight"] = torch.randn(state["reverb.head.weight"].shape, generator=g) * 0.3
     state["reverb.head.bias"] = torch.full((2,), -0.5)
     state["reverb.log_rt60"] = torch.log(torch.linspace(0.2, 0.8, 257))
-    return SceneRenderer(ckpt)
+    return ckpt
+
+
+@pytest.fixture(scope="session")
+def tail_checkpoint():
+    """Makes the checkpoint of ``tail_renderer`` anew at each call (for renderers of one's own)."""
+    return _tail_checkpoint
+
+
+@pytest.fixture(scope="session")
+def tail_renderer():
+    """A renderer whose tail is loud and pose-dependent (random head weights, RT60 0.2-0.8 s)."""
+    from avgs.inference import SceneRenderer
+
+    return SceneRenderer(_tail_checkpoint())

@@ -115,3 +115,37 @@ def test_the_syntheses_are_timed_on_the_same_poses(one_source_ckpt):
     xs = [s[1:] for s in seen if s[0] == "x"]
     assert xs == [s[1:] for s in seen if s[0] == "y"]  # the same poses, in the same order
     assert len(set(xs)) == 8  # (the untimed call of a block repeats its first pose)
+
+
+def test_the_default_is_also_timed_with_a_new_clip_at_every_pose(one_source_ckpt):
+    """The bench's one-clip renders keep the clip's analysis (the explorer's case); beside them
+    the default is timed with a clip no call before it used, on the same poses."""
+    from avgs.bench.speed_error import NEW_CLIP, synthesis_latencies
+    from avgs.inference import SceneRenderer
+
+    heard = {"same": [], "new": []}
+
+    class Spy:
+        def __init__(self, r, name):
+            self.r, self.name, self.sample_rate = r, name, r.sample_rate
+            self.bounds, self.source = r.bounds, r.source
+
+        def render(self, listener, yaw, mono):
+            heard[self.name].append((tuple(listener), yaw, mono.tobytes()))
+            return self.r.render(listener, yaw, mono)
+
+    r = SceneRenderer.load(one_source_ckpt)
+    t = synthesis_latencies({"x": Spy(r, "same")}, repeats=8, new_clip=Spy(r, "new"))
+    assert t[NEW_CLIP].n == t["x"].n == 8
+    assert len({clip for *_, clip in heard["same"]}) == 1
+    clips = [clip for *_, clip in heard["new"]]
+    assert all(a != b for a, b in zip(clips, clips[1:]))  # the untimed call of a block too
+    assert [p[:2] for p in heard["new"]] == [p[:2] for p in heard["same"]]  # the same poses, in the same order
+
+
+def test_headline_gives_a_pose_with_a_new_clip_against_the_target():
+    ref = {"label": "AV-GS vicinity 15 %", "family": "AV-GS vicinity", "latency_ms": 3.2, "MAG": 0.12, "ENV": 0.05,
+           "new_clip_ms": 3.9}
+    text = headline(summarise([{"rows": [dict(ref, scene="a")]}, {"rows": [dict(ref, scene="b", new_clip_ms=4.1)]}]))
+    assert "**3.20 ms**" in text and "a new clip at every pose" in text and "**4.00 ms**" in text
+    assert "at most 5 ms on 2 CPU cores" in text

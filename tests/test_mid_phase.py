@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from avgs import dsp
-from avgs.acoustics.synthesis import Masks, mid_phase_waveform
+from avgs.acoustics.synthesis import Masks, ear_magnitudes, mid_phase_waveform, pose_parts, source_parts
 from avgs.config import MID_PHASE_ITERATIONS, SynthesisConfig
 from avgs.mid_phase_stream import MidPhaseStream
 
@@ -29,6 +29,54 @@ def test_a_gain_only_pose_gives_the_gained_input_back():
     assert y.shape == (1, 2, 22050) and ears.shape == (1, 2, F, 173)
     assert torch.allclose(y[0, 0], x, atol=2e-3 * float(x.abs().max()))
     assert torch.allclose(y[0, 1], 0.6 * x, atol=2e-3 * float(x.abs().max()))
+
+
+@pytest.mark.parametrize("tail", [False, True])
+def test_pose_parts_are_the_ear_magnitudes(tail):
+    """The per-clip and per-pose halves of the default synthesis give ear_magnitudes' s_m, s_l,
+    s_r (frame-major), and a first guess with the mid magnitudes."""
+    g = torch.Generator().manual_seed(3)
+    spec = dsp.stft(torch.from_numpy(_noise(5000, 2))[None])  # [1, F, 40]
+    masks = Masks(torch.rand(1, F, generator=g), 2 * torch.rand(1, F, generator=g) - 1,
+                  torch.rand(1, 2, F, generator=g) if tail else None, torch.full((F,), 0.7) if tail else None)
+    start, mid, ears = pose_parts(source_parts(spec, masks.decay), masks)
+    s_m, s_l, s_r = ear_magnitudes(spec.abs(), masks)
+    # Compared in power: the tail's FFT convolution leaves rounding of its largest value
+    # (~1e-7 of it) where it is 0 (the first frame), which a square root magnifies.
+    atol = 1e-6 * float(s_m.square().max())
+    torch.testing.assert_close(mid.square(), s_m.transpose(-1, -2).square(), rtol=1e-4, atol=atol)
+    torch.testing.assert_close(ears.square(), torch.stack([s_l, s_r], dim=1).transpose(-1, -2).square(),
+                               rtol=1e-4, atol=atol)
+    torch.testing.assert_close(start.abs(), mid, rtol=1e-5, atol=1e-6)
+    if tail:
+        with pytest.raises(ValueError, match="tail"):
+            pose_parts(source_parts(spec), masks)  # parts made without the scene's decay
+
+
+def test_a_clip_heard_from_many_poses_is_analysed_once(tail_checkpoint, monkeypatch):
+    """The renderer keeps the last clip's source analysis: the next pose of the same clip
+    only does its own part, with the same output as a renderer that did not keep it; a
+    changed clip (even changed in place by the caller) is analysed anew."""
+    import avgs.inference
+    from avgs.inference import SceneRenderer
+
+    calls = []
+    analyse = avgs.inference.source_parts
+    monkeypatch.setattr(avgs.inference, "source_parts", lambda *a, **k: calls.append(1) or analyse(*a, **k))
+    r, other = SceneRenderer(tail_checkpoint()), SceneRenderer(tail_checkpoint())
+    x = _speech_like(22050, seed=4)
+    poses = [((2.0, 1.0, 1.6), 45.0), ((4.0, 3.0, 1.6), -120.0), ((1.0, 2.5, 1.6), 10.0)]
+    first = [r.render(*pose, x).binaural for pose in poses]
+    assert len(calls) == 1
+    for pose, y in zip(poses, first):
+        other.render(*pose, x[:3000])  # another clip in between: x is analysed anew
+        assert np.array_equal(other.render(*pose, x).binaural, y)
+    calls.clear()
+    x[1000:1100] *= -1.0  # the caller changes the clip in place (where it is not silent)
+    y = r.render(*poses[0], x).binaural
+    assert len(calls) == 1 and not np.array_equal(y, first[0])
+    other.render(*poses[0], x[:3000])
+    assert np.array_equal(other.render(*poses[0], x).binaural, y)
 
 
 def _speech_like(n, seed=0):

@@ -62,13 +62,12 @@ def ear_gains(mixture: torch.Tensor, difference: torch.Tensor) -> torch.Tensor:
     return torch.stack([mixture * (1.0 + difference), mixture * (1.0 - difference)], dim=-2)
 
 
-def ear_magnitudes(mono_mag: torch.Tensor, masks: Masks, power: torch.Tensor | None = None,
-                   source_power: torch.Tensor | None = None):
+def ear_magnitudes(mono_mag: torch.Tensor, masks: Masks, power: torch.Tensor | None = None):
     """Predicted magnitudes ``(s_m, s_l, s_r)``, each [B, F, N_t], of the source magnitudes ``mono_mag`` [B, F, N_t].
 
     ``power`` [B, F, N_t]: the tail's decayed source power (:func:`~avgs.acoustics.reverb_tail.tail_power`);
     computed here when the masks carry a tail and it is not given (streams pass their recursion's).
-    ``source_power``: ``mono_mag^2`` when the caller has it (rendering without autograd).
+    The default synthesis makes the same magnitudes frame-major (:func:`pose_parts`).
     """
     gains = ear_gains(masks.mixture, masks.difference)  # [B, 2, F]
     if masks.reverb is None:
@@ -76,13 +75,13 @@ def ear_magnitudes(mono_mag: torch.Tensor, masks: Masks, power: torch.Tensor | N
         s_r = mono_mag * gains[:, 1, :, None]
         return mono_mag * masks.mixture[..., None], s_l, s_r
     if power is None:
-        power = tail_power(mono_mag, masks.decay, source_power)  # [B, F, N_t]
+        power = tail_power(mono_mag, masks.decay)  # [B, F, N_t]
     if any(t.requires_grad for t in (mono_mag, gains, masks.reverb, power)):  # training
         s_l = _sqrt0((mono_mag * gains[:, 0, :, None]).square() + masks.reverb[:, 0, :, None].square() * power)
         s_r = _sqrt0((mono_mag * gains[:, 1, :, None]).square() + masks.reverb[:, 1, :, None].square() * power)
         return 0.5 * (s_l + s_r), s_l, s_r
     # Rendering: s_ear = sqrt(|S|^2 g^2 + r^2 P) in three passes per ear (all terms >= 0), no gradient to guard at 0.
-    sq = mono_mag.square() if source_power is None else source_power  # [B, F, N_t]
+    sq = mono_mag.square()  # [B, F, N_t]
     g2, r2 = gains.square()[..., None], masks.reverb.square()[..., None]  # [B, 2, F, 1]
     s_l = (sq * g2[:, 0]).addcmul_(power, r2[:, 0]).sqrt_()
     s_r = (sq * g2[:, 1]).addcmul_(power, r2[:, 1]).sqrt_()
@@ -126,32 +125,26 @@ START_FLOOR = 1e-3
 "Source bins this far below their frame's loudest (60 dB) start from the fill phase: their own is rounding noise."
 
 
-def start_phase(mono_stft: torch.Tensor, power: torch.Tensor, first_frame: int = 0, tail: bool = False,
-                magnitude: torch.Tensor | None = None) -> torch.Tensor:
-    """The phase retrieval's first phase [..., F, N_t]: the source's, blended into the fill phase
-    (:func:`source_phase`'s for silent bins) where the source is near silent in its frame.
+def start_phase(spec: torch.Tensor, power: torch.Tensor, first_frame: int = 0, tail: bool = False) -> torch.Tensor:
+    """The phase retrieval's first phase, unit phasors [..., N_t, F] (frame-major): the source's,
+    blended into the fill phase (:func:`source_phase`'s for silent bins) where the source is near
+    silent in its frame.
 
     The phase of a bin 60 dB or more below its frame's loudest is rounding noise of the
     STFT, and depends on the input's scale; where the tail rings on, it would decide the
     output. ``unit(S + START_FLOOR max_f |S| fill)`` keeps the source's phase where it is
     defined, takes the fill phase where it is not, and changes continuously in between:
     the output does not depend on the input's scale, nor on how it is cut into blocks.
-    ``power``: ``|mono_stft|^2``. ``magnitude`` [..., F, N_t]: return the phase times it (the
-    first guess itself, one pass less).
+    ``spec``: the source's STFT frame-major [..., N_t, F] complex; ``power``: ``|spec|^2``.
     """
-    n_freq, n = power.shape[-2], power.shape[-1]
-    fill = fill_phase(n_freq, first_frame, n, power.device).to(mono_stft.dtype) if tail else None  # [F, N]
-    floor = power.amax(dim=-2, keepdim=True).sqrt_().mul_(START_FLOOR)  # [..., 1, N]
-    z = mono_stft + (floor if fill is None else floor * fill)  # [..., F, N]
-    scale = (z * z.conj()).real.clamp_min(torch.finfo(power.dtype).tiny).rsqrt_()  # 1 / |z|
-    if magnitude is not None:
-        scale.mul_(magnitude)
-    out = z * scale
-    silent = floor == 0  # [..., 1, N]: frames where the source is exactly silent, and so is z
+    n, n_freq = power.shape[-2], power.shape[-1]
+    fill = fill_phase(n_freq, first_frame, n, power.device).to(spec.dtype).t() if tail else None  # [N, F]
+    floor = power.amax(dim=-1, keepdim=True).sqrt_().mul_(START_FLOOR)  # [..., N, 1]
+    z = spec + (floor if fill is None else floor * fill)  # [..., N, F]
+    out = z * (z * z.conj()).real.clamp_min(torch.finfo(power.dtype).tiny).rsqrt_()  # z / |z|
+    silent = floor == 0  # [..., N, 1]: frames where the source is exactly silent, and so is z
     if bool(silent.any()):  # their phase: the fill phase (or 1), as source_phase's
-        if fill is None:
-            fill = torch.ones((), dtype=mono_stft.dtype, device=mono_stft.device)
-        out = torch.where(silent, fill if magnitude is None else fill * magnitude, out)
+        out = torch.where(silent, torch.ones((), dtype=spec.dtype, device=spec.device) if fill is None else fill, out)
     return out
 
 
@@ -199,16 +192,54 @@ def binaural_waveform(
     return waveform(ear_spectrogram(mono_stft, masks, post_conv, phase=phase), length, stft, synthesis)
 
 
+@dataclass(frozen=True)
+class SourceParts:
+    """What the default synthesis takes from the source alone, frame-major ([B, N_t, F]): the same
+    for every pose of a clip (:func:`source_parts`; a renderer keeps its last clip's)."""
+
+    power: torch.Tensor  # [B, N, F] |S|^2
+    magnitude: torch.Tensor  # [B, N, F] |S|
+    tail: torch.Tensor | None  # [B, N, F] the tail's decayed source power P; None: masks without a tail
+    start: torch.Tensor  # [B, N, F] complex: the phase retrieval's first phase (start_phase)
+
+
+def source_parts(mono_stft: torch.Tensor, decay: torch.Tensor | None = None, first_frame: int = 0,
+                 tail: torch.Tensor | None = None) -> SourceParts:
+    """:class:`SourceParts` of the source's STFT ``mono_stft`` [B, F, N] (complex). ``decay`` [F]:
+    the scene's tail decay per frame (``Masks.decay``; None for masks without a tail); ``tail``:
+    the tail's power [B, F, N] when the caller carries it (a stream's recursion); ``first_frame``:
+    the absolute index of frame 0."""
+    spec = mono_stft.transpose(-1, -2)  # [B, N, F]: contiguous for dsp.stft's output
+    power = (spec * spec.conj()).real.contiguous()  # [B, N, F] |S|^2
+    if decay is not None and tail is None:
+        tail = tail_power(power.transpose(-1, -2), decay, power.transpose(-1, -2))  # [B, F, N]
+    return SourceParts(
+        power, power.sqrt(), None if tail is None else tail.transpose(-1, -2).contiguous(),
+        start_phase(spec, power, first_frame, decay is not None),
+    )
+
+
+def pose_parts(source: SourceParts, masks: Masks):
+    """What the default synthesis retrieves its phase from, frame-major, for one pose's ``masks``:
+    (first guess [B, N, F] complex: the mid magnitudes ``s_m`` with :func:`start_phase`; ``s_m``
+    [B, N, F]; the ears' magnitudes [B, 2, N, F]), as :func:`ear_magnitudes` makes them."""
+    gains = ear_gains(masks.mixture, masks.difference).unsqueeze(-2)  # [B, 2, 1, F]
+    if masks.reverb is None:
+        ears = source.magnitude.unsqueeze(1) * gains  # [B, 2, N, F]
+        mid = source.magnitude * masks.mixture.unsqueeze(-2)  # [B, N, F]
+    else:
+        if source.tail is None:
+            raise ValueError("these masks have a reverberant tail: make the source's parts with their decay")
+        # s_ear = sqrt(|S|^2 g^2 + r^2 P): three passes for both ears, all terms >= 0.
+        ears = (source.power.unsqueeze(1) * gains.square()).addcmul_(
+            source.tail.unsqueeze(1), masks.reverb.square().unsqueeze(-2)).sqrt_()  # [B, 2, N, F]
+        mid = torch.add(ears[:, 0], ears[:, 1]).mul_(0.5)  # [B, N, F]
+    return source.start * mid, mid, ears
+
+
 def mid_phase_parts(mono_stft: torch.Tensor, masks: Masks, first_frame: int = 0, tail: torch.Tensor | None = None):
-    """What the default synthesis retrieves its phase from, frame-major: (first guess [B, N, F]
-    complex: the mid magnitudes ``s_m`` with :func:`start_phase`; ``s_m`` [B, N, F]; the ears'
-    magnitudes [B, 2, N, F]), of the source's STFT ``mono_stft`` [B, F, N]. ``tail``: the tail's
-    power [B, F, N] when the caller carries it (a stream's recursion); ``first_frame``: the
-    absolute index of frame 0."""
-    power = (mono_stft * mono_stft.conj()).real  # [B, F, N] |S|^2
-    s_m, s_l, s_r = ear_magnitudes(power.sqrt(), masks, tail, source_power=power)  # [B, F, N] each
-    start = start_phase(mono_stft, power, first_frame, masks.reverb is not None, magnitude=s_m)  # [B, F, N]
-    return start.transpose(-1, -2), s_m.transpose(-1, -2), torch.stack([s_l, s_r], dim=1).transpose(-1, -2)
+    """:func:`pose_parts` of :func:`source_parts` of the source's STFT ``mono_stft`` [B, F, N]."""
+    return pose_parts(source_parts(mono_stft, masks.decay, first_frame, tail), masks)
 
 
 def shared_phase_waveform(ears: torch.Tensor, phase: torch.Tensor, length: int, stft: STFTConfig = STFT) -> torch.Tensor:
@@ -220,7 +251,7 @@ def shared_phase_waveform(ears: torch.Tensor, phase: torch.Tensor, length: int, 
 
 def mid_phase_waveform(
     mono_stft: torch.Tensor, masks: Masks, length: int, stft: STFTConfig = STFT, synthesis: SynthesisConfig | None = None,
-    first_frame: int = 0,
+    first_frame: int = 0, source: SourceParts | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The default synthesis: (waveform [B, 2, length], ear magnitudes [B, 2, F, N_t]).
 
@@ -229,12 +260,14 @@ def mid_phase_waveform(
     magnitudes take it. The ears' magnitudes differ from ``s_m`` by slowly varying gains
     per bin, so the shared phase is nearly as consistent for them as for ``s_m``: one
     retrieval instead of two. Mask model only (no conv head). ``first_frame``: the absolute
-    index of frame 0 (:func:`source_phase`). :class:`avgs.mid_phase_stream.MidPhaseStream`
-    does the same block by block, from the same two pieces (:func:`mid_phase_parts`,
+    index of frame 0 (:func:`source_phase`). ``source``: :func:`source_parts` of ``mono_stft``
+    when already made (``mono_stft`` is then not read). :class:`avgs.mid_phase_stream.MidPhaseStream`
+    does the same block by block, from the same pieces (:func:`source_parts`, :func:`pose_parts`,
     :func:`shared_phase_waveform`).
     """
     synthesis = synthesis or SynthesisConfig()
-    start, mid, ears = mid_phase_parts(mono_stft, masks, first_frame)  # frame-major
-    phase = retrieve_phase(mid.contiguous(), start.contiguous(), length, synthesis.iterations,
-                           synthesis.phase_momentum, stft)  # [B, N, F]
+    if source is None:
+        source = source_parts(mono_stft, masks.decay, first_frame)
+    start, mid, ears = pose_parts(source, masks)  # frame-major
+    phase = retrieve_phase(mid, start, length, synthesis.iterations, synthesis.phase_momentum, stft)  # [B, N, F]
     return shared_phase_waveform(ears, phase, length, stft), ears.transpose(-1, -2)

@@ -24,6 +24,7 @@ absolute level cannot be compared; the gain keeps the interaural level differenc
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import time
 from pathlib import Path
 
@@ -127,9 +128,16 @@ def renderer_latency(renderer, repeats: int) -> Timing:
     return time_render(lambda l, y, m: renderer.render(l, y, m), poses, mono, repeats, device=renderer.device)
 
 
-def synthesis_latencies(renderers: dict, repeats: int) -> dict[str, Timing]:
+NEW_CLIP = "default, a new clip every pose"
+"The label of the default synthesis timed with a different clip at every call (:func:`synthesis_latencies`)."
+
+
+def synthesis_latencies(renderers: dict, repeats: int, new_clip=None) -> dict[str, Timing]:
     """:func:`renderer_latency` of each renderer (label -> renderer), timed taking turns in blocks
-    on the same poses (:func:`avgs.bench.timing.time_interleaved`)."""
+    on the same poses (:func:`avgs.bench.timing.time_interleaved`). Each renders one clip at
+    every pose, as the explorer does (the renderer keeps the clip's source analysis);
+    ``new_clip``, a renderer timed beside them (label :data:`NEW_CLIP`) with a different clip at
+    every call, as evaluation renders: nothing of the clip is kept."""
     from avgs.bench.timing import time_interleaved
 
     first = next(iter(renderers.values()))
@@ -142,7 +150,17 @@ def synthesis_latencies(renderers: dict, repeats: int) -> dict[str, Timing]:
             renderer.render(lis, yaw, mono)
         return render
 
-    return time_interleaved({label: call(r) for label, r in renderers.items()}, repeats=repeats)
+    fns = {label: call(r) for label, r in renderers.items()}
+    if new_clip is not None:
+        clips = [test_signal(1.0, first.sample_rate, seed=s) for s in range(1, 8)]
+        count = itertools.count()
+
+        def fresh(i: int):  # consecutive calls never share a clip, the untimed one of a block included
+            lis, yaw = poses[i % len(poses)]
+            new_clip.render(lis, yaw, clips[next(count) % len(clips)])
+
+        fns[NEW_CLIP] = fresh
+    return time_interleaved(fns, repeats=repeats)
 
 
 def method_latency(method, scene, repeats: int) -> Timing:
@@ -298,12 +316,14 @@ def bench_scene(scene_dir, work: Path, *, iterations: int, n_points: int, repeat
     # The syntheses: speed against error of each, timed taking turns in blocks of poses (with the
     # default: the reference row's time is that one), so that their ratios hold on a busy machine.
     renderers = {label: SceneRenderer.load(models[ref_v], synthesis=synthesis) for label, synthesis in SYNTHESES.items()}
-    timings = synthesis_latencies(renderers, repeats)
+    timings = synthesis_latencies(renderers, repeats, new_clip=SceneRenderer.load(models[ref_v]))
     ref_row = next(r for r in rows if r["family"] == "AV-GS vicinity" and r["label"] == f"AV-GS vicinity {ref_v:g} %")
+    fresh = timings[NEW_CLIP]
     for label, synthesis in SYNTHESES.items():
         t = timings[label]
-        if synthesis == SynthesisConfig():  # the vicinity row: its score, this time
-            ref_row.update(latency_ms=t.median_ms, p95_ms=t.p95_ms, timed_with_syntheses=True)
+        if synthesis == SynthesisConfig():  # the vicinity row: its score, this time (and a new clip's)
+            ref_row.update(latency_ms=t.median_ms, p95_ms=t.p95_ms, timed_with_syntheses=True,
+                           new_clip_ms=fresh.median_ms, new_clip_p95_ms=fresh.p95_ms)
             continue
         s = score(RendererMethod(renderers[label]), scene)
         rows.append({**base, "family": "AV-GS synthesis", "label": f"AV-GS {ref_v:g} % {label}",
@@ -357,5 +377,6 @@ def summarise(scenes: list[dict]) -> list[dict]:
         out.append({"label": label, "family": r0["family"], "scenes": len(rows),
                     "latency_ms": float(np.median([r["latency_ms"] for r in rows])),
                     "MAG": float(np.mean([r["MAG"] for r in rows])), "ENV": float(np.mean([r["ENV"] for r in rows])),
-                    **{k: r0[k] for k in ("points", "k", "ckpt_bytes", "order", "ray_tracing") if k in r0}})
+                    **{k: r0[k] for k in ("points", "k", "ckpt_bytes", "order", "ray_tracing") if k in r0},
+                    **({"new_clip_ms": float(np.median([r["new_clip_ms"] for r in rows]))} if "new_clip_ms" in r0 else {})})
     return out

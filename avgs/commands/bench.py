@@ -210,7 +210,10 @@ def run(args: argparse.Namespace) -> int:
         "numbers from one run only.",
         "The syntheses ('AV-GS synthesis' rows and the default's, the reference vicinity row) are timed taking turns "
         "in blocks of four poses, each block after one untimed call, so their ratios hold while the machine's load "
-        "moves; the other rows are timed one after the other.",
+        "moves; the other rows are timed one after the other. Every AV-GS row renders one 1 s clip at pose after pose, "
+        "as the explorer does: a renderer keeps the last clip's source analysis (STFT, tail power, first phase), so a "
+        "pose costs only its own part; the default is also timed beside them with a new clip at every call "
+        "(results.json: new_clip_ms), what a pose costs when nothing of the clip is kept.",
         "Bench models skip stage 1: G_a starts from points uniform in the box around the listeners and the source "
         "(widened by 0.3 normalised units) with random alpha, and stage 2 runs the given iterations (the paper: 40k). "
         "Their errors rank settings against each other; they are not the paper's numbers.",
