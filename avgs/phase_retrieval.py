@@ -25,6 +25,7 @@ import functools
 import torch
 
 from avgs.config import STFT, STFTConfig
+from avgs.kernels import project_magnitudes
 
 GRIFFIN_LIM_BLOCK_FRAMES = 4096
 "Frames per block of :func:`griffin_lim` on long inputs (about 24 s at AV-NeRF's hop): memory stays bounded."
@@ -141,27 +142,22 @@ def _iterate(grid: FrameGrid, start: torch.Tensor, target: torch.Tensor, length:
 
     The inverse STFT is linear, so the momentum step ``c_k = p_k + m (p_k - p_(k-1))`` is
     taken on the projections' padded signals (a quarter of the numbers of a spectrogram),
-    and the magnitude projection is one real scale per bin, ``target / |rebuilt|``.
+    and the magnitude projection is one loop on the CPU (:func:`avgs.kernels.project_magnitudes`).
     """
-    tiny = torch.finfo(target.dtype).tiny
     if iterations == 0:
-        if not phase:
-            return grid.synthesise(start)
-        return start * (start * start.conj()).real.clamp_min(tiny).rsqrt_()
+        return project_magnitudes(start) if phase else grid.synthesise(start)
 
-    def consistent(z: torch.Tensor):
-        """(the STFT of the padded signal z [..., N, F], 1 / its magnitudes, without abs()'s hypot)."""
-        rebuilt = grid.analyse(grid.pad_ends(z, length))
-        return rebuilt, (rebuilt * rebuilt.conj()).real.clamp_min(tiny).rsqrt_()
+    def consistent(z: torch.Tensor) -> torch.Tensor:
+        """The STFT [..., N, F] of the padded signal z (its padding rewritten as the STFT pads)."""
+        return grid.analyse(grid.pad_ends(z, length))
 
     z, previous = grid.synthesise(start), None  # padded signals: the current guess's, the last projection's
     for _ in range(iterations - 1):
-        rebuilt, scale = consistent(z)
-        projected = grid.synthesise(rebuilt * scale.mul_(target))  # the target magnitudes with rebuilt's phase
+        projected = grid.synthesise(project_magnitudes(consistent(z), target))  # the target magnitudes, rebuilt's phase
         z = projected if previous is None else torch.lerp(previous, projected, 1.0 + momentum)
         previous = projected
-    rebuilt, scale = consistent(z)
-    return rebuilt * scale if phase else grid.synthesise(rebuilt * scale.mul_(target))
+    rebuilt = consistent(z)
+    return project_magnitudes(rebuilt) if phase else grid.synthesise(project_magnitudes(rebuilt, target))
 
 
 def retrieve_phase(target: torch.Tensor, start: torch.Tensor, length: int, iterations: int, momentum: float = 0.99,

@@ -24,7 +24,7 @@ model is exactly the paper's mask model.
 Like the masks, the filter is fixed for a pose, so audio of any length is binauralised
 by it: ``P`` is a causal convolution along frames, computed by FFT for any length, or
 frame by frame by its one-pole recursion ``P(t) = w (P(t-1) + |S(t-1)|^2)``
-(:func:`tail_power_recursive`, the streaming form).
+(:func:`tail_power_recursive`: streams, and renders on the CPU).
 """
 
 from __future__ import annotations
@@ -35,6 +35,8 @@ from collections import OrderedDict
 
 import torch
 from torch import nn
+
+from avgs.kernels import decayed_power
 
 LN_1E6 = math.log(1e6)
 "RT60 is the time for the power to fall by 60 dB, a factor of 1e6."
@@ -127,19 +129,14 @@ def _cached_kernel_spectrum(decay: torch.Tensor, taps: int, size: int) -> torch.
 
 
 def tail_power_recursive(mono_mag: torch.Tensor, decay: torch.Tensor, state: torch.Tensor | None = None):
-    """The same sum by the recursion ``P(t) = w (P(t-1) + |S(t-1)|^2)``, frame by frame.
+    """The same sum by the recursion ``P(t) = w (P(t-1) + |S(t-1)|^2)``, frame by frame
+    (:func:`avgs.kernels.decayed_power`: one compiled loop on the CPU).
 
     mono_mag: [..., F, N_t]; decay [F]; ``state`` = ``P(t0) + |S(t0)|^2`` of the frame before
     this block ([..., F], zeros at the start). Returns (P [..., F, N_t], the next state).
     """
-    power = mono_mag.square()
-    acc = torch.zeros_like(power[..., 0]) if state is None else state  # [..., F]
-    out = torch.empty_like(power)
-    for t in range(power.shape[-1]):
-        acc = acc * decay
-        out[..., t] = acc
-        acc = acc + power[..., t]
-    return out, acc
+    power, state = decayed_power(mono_mag.square().transpose(-1, -2), decay, state)  # frame-major
+    return power.transpose(-1, -2), state
 
 
 class ReverbTail(nn.Module):

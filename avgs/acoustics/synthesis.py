@@ -27,6 +27,7 @@ import torch
 
 from avgs.acoustics.reverb_tail import fill_phase, tail_power
 from avgs.config import STFT, STFTConfig, SynthesisConfig
+from avgs.kernels import decayed_power, project_magnitudes
 from avgs.phase_retrieval import frame_grid, griffin_lim, retrieve_phase
 
 
@@ -141,7 +142,7 @@ def start_phase(spec: torch.Tensor, power: torch.Tensor, first_frame: int = 0, t
     fill = fill_phase(n_freq, first_frame, n, power.device).to(spec.dtype).t() if tail else None  # [N, F]
     floor = power.amax(dim=-1, keepdim=True).sqrt_().mul_(START_FLOOR)  # [..., N, 1]
     z = spec + (floor if fill is None else floor * fill)  # [..., N, F]
-    out = z * (z * z.conj()).real.clamp_min(torch.finfo(power.dtype).tiny).rsqrt_()  # z / |z|
+    out = project_magnitudes(z)  # z / |z|
     silent = floor == 0  # [..., N, 1]: frames where the source is exactly silent, and so is z
     if bool(silent.any()):  # their phase: the fill phase (or 1), as source_phase's
         out = torch.where(silent, torch.ones((), dtype=spec.dtype, device=spec.device) if fill is None else fill, out)
@@ -211,12 +212,13 @@ def source_parts(mono_stft: torch.Tensor, decay: torch.Tensor | None = None, fir
     the absolute index of frame 0."""
     spec = mono_stft.transpose(-1, -2)  # [B, N, F]: contiguous for dsp.stft's output
     power = (spec * spec.conj()).real.contiguous()  # [B, N, F] |S|^2
-    if decay is not None and tail is None:
-        tail = tail_power(power.transpose(-1, -2), decay, power.transpose(-1, -2))  # [B, F, N]
-    return SourceParts(
-        power, power.sqrt(), None if tail is None else tail.transpose(-1, -2).contiguous(),
-        start_phase(spec, power, first_frame, decay is not None),
-    )
+    if tail is not None:
+        tail = tail.transpose(-1, -2).contiguous()  # [B, N, F]
+    elif decay is not None and power.device.type == "cpu":  # the recursion: one loop over the frames
+        tail = decayed_power(power, decay)[0]
+    elif decay is not None:  # elsewhere (CUDA) the FFT convolution: a loop over frames is a launch per frame
+        tail = tail_power(power.transpose(-1, -2), decay, power.transpose(-1, -2)).transpose(-1, -2).contiguous()
+    return SourceParts(power, power.sqrt(), tail, start_phase(spec, power, first_frame, decay is not None))
 
 
 def pose_parts(source: SourceParts, masks: Masks):

@@ -1,0 +1,114 @@
+"""Fused loops on the CPU for the synthesis' per-element work, compiled by numba.
+
+Torch runs each element-wise step as its own pass over memory, with its own dispatch.
+Two steps of every render are long chains of such passes over small arrays:
+
+- the phase retrieval's magnitude projection, ``target * X / |X|`` on a spectrogram:
+  |X|^2, its floor, 1/sqrt, times the target, a complex copy of the scale, the product
+  (six passes, ten times a render);
+- the tail's decayed power ``P(t) = w (P(t-1) + |S(t-1)|^2)``: by torch an FFT convolution
+  along frames padded to twice the tail, or a Python loop over frames.
+
+:func:`project_magnitudes` and :func:`decayed_power` do each as one loop (a render of a
+1 s clip: the projection 8 us instead of 40, the tail 5 us instead of 120 on our 2 cores).
+They take torch tensors; on the CPU the loops run on their memory, elsewhere (CUDA) the
+torch expressions run, which are also the reference the loops are tested against
+(tests/test_kernels.py). The loops compile once per dtype on first use (about a second)
+and numba keeps the result on disk beside this file, or in the user's cache folder where
+this one is read-only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from numba import njit
+
+_LOOP = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False,
+             fastmath={"nnan", "ninf", "nsz", "contract"})  # IEEE sqrt and division: no approximate reciprocals
+
+
+@njit(**_LOOP)
+def _project(spec, target, floor, out):  # pragma: no cover - compiled
+    """out = target * spec / max(|spec|, sqrt(floor)); spec, out: [M, 2F] (re, im interleaved); target [M, F]."""
+    m_rows, n_freq = target.shape
+    for m in range(m_rows):
+        x, tg, o = spec[m], target[m], out[m]
+        for f in range(n_freq):
+            re, im = x[2 * f], x[2 * f + 1]
+            s = tg[f] / np.sqrt(max(re * re + im * im, floor))
+            o[2 * f] = re * s
+            o[2 * f + 1] = im * s
+
+
+@njit(**_LOOP)
+def _unit(spec, floor, one, out):  # pragma: no cover - compiled
+    """out = spec / max(|spec|, sqrt(floor)) (0 where spec is 0); [M, 2F] interleaved; ``one``: 1 in their dtype."""
+    m_rows, n2 = spec.shape
+    for m in range(m_rows):
+        x, o = spec[m], out[m]
+        for f in range(n2 // 2):
+            re, im = x[2 * f], x[2 * f + 1]
+            s = one / np.sqrt(max(re * re + im * im, floor))
+            o[2 * f] = re * s
+            o[2 * f + 1] = im * s
+
+
+@njit(**_LOOP)
+def _decayed(power, decay, state, out):  # pragma: no cover - compiled
+    """out[m, t] = decay * (out[m, t-1] + power[m, t-1]), from state[m] = P(-1) + |S(-1)|^2; state updated."""
+    m_rows, n, n_freq = power.shape
+    for m in range(m_rows):
+        acc = state[m]
+        for t in range(n):
+            p, o = power[m, t], out[m, t]
+            for f in range(n_freq):
+                a = acc[f] * decay[f]
+                o[f] = a
+                acc[f] = a + p[f]
+
+
+def _on_cpu(*tensors: torch.Tensor) -> bool:
+    return all(t.device.type == "cpu" and not t.requires_grad for t in tensors)
+
+
+def project_magnitudes(spec: torch.Tensor, target: torch.Tensor | None = None) -> torch.Tensor:
+    """``target * spec / |spec|``: the magnitudes ``target`` [..., F] (>= 0, real) with the phase of
+    ``spec`` [..., F] (complex); with no target, the unit phasors of ``spec``. A bin where
+    ``spec`` is 0 gives 0 (its magnitude is floored at the dtype's smallest normal number)."""
+    real = torch.float64 if spec.dtype == torch.complex128 else torch.float32
+    floor = torch.finfo(real).tiny
+    if not _on_cpu(spec) or (target is not None and (not _on_cpu(target) or target.dtype != real)):
+        scale = (spec * spec.conj()).real.clamp_min(floor).rsqrt_()
+        return spec * (scale if target is None else scale.mul_(target))
+    n_freq = spec.shape[-1]
+    x = torch.view_as_real(spec.contiguous()).reshape(-1, 2 * n_freq).numpy()
+    out = torch.empty(spec.shape, dtype=spec.dtype)
+    o = torch.view_as_real(out).view(-1, 2 * n_freq).numpy()
+    if target is None:
+        _unit(x, x.dtype.type(floor), x.dtype.type(1), o)
+    else:
+        _project(x, target.expand(spec.shape).contiguous().reshape(-1, n_freq).numpy(), x.dtype.type(floor), o)
+    return out
+
+
+def decayed_power(power: torch.Tensor, decay: torch.Tensor, state: torch.Tensor | None = None):
+    """The tail's power frame by frame, ``P(t) = w (P(t-1) + |S(t-1)|^2)``, frame-major.
+
+    power: ``|S|^2`` [..., N_t, F] (real, >= 0); decay: w [F]; ``state``: ``P + |S|^2`` of the
+    frame before ([..., F]; None: silence before). Returns (P [..., N_t, F], the next state).
+    """
+    lead, (n, n_freq) = power.shape[:-2], power.shape[-2:]
+    acc = torch.zeros(*lead, n_freq, dtype=power.dtype, device=power.device) if state is None else state.clone()
+    if not _on_cpu(power, decay, acc):
+        out = torch.empty_like(power)
+        for t in range(n):
+            acc = acc * decay
+            out[..., t, :] = acc
+            acc = acc + power[..., t, :]
+        return out, acc
+    out = torch.empty(power.shape, dtype=power.dtype)
+    flat = acc.reshape(-1, n_freq)
+    _decayed(power.contiguous().reshape(-1, n, n_freq).numpy(), decay.to(power.dtype).contiguous().numpy(),
+             flat.numpy(), out.view(-1, n, n_freq).numpy())
+    return out, flat.view(acc.shape)
