@@ -534,7 +534,8 @@ class SceneRenderer:
         for lo, hi, start, stop in pieces:
             piece = torch.from_numpy(x[start:stop] / np.float32(scale)).to(self.device)  # [stop - start]
             if mid:  # one retrieved phase for both ears (the default)
-                parts = self._clip_parts(x, piece, m32.decay) if stop - start == x.size else None
+                kept = stop - start == x.size and dsp.n_frames(x.size, self.stft) <= RENDER_BLOCK_FRAMES  # a clip, not a file
+                parts = self._clip_parts(x, piece, m32.decay) if kept else None
                 wave, ears = mid_phase_waveform(None if parts is not None else dsp.stft(piece[None], self.stft), m32, stop - start,
                                                 self.stft, synthesis, start // self.stft.hop_length, parts)
                 if magnitudes:
@@ -564,7 +565,8 @@ class SceneRenderer:
     def _clip_parts(self, x: np.ndarray, unit: torch.Tensor, decay: torch.Tensor | None) -> SourceParts:
         """:func:`~avgs.acoustics.synthesis.source_parts` of the whole input ``x`` (``unit``: it at unit
         peak, [T]), kept for the next render of the same clip: the explorer and the benchmarks
-        hear one clip from many poses, and only the pose's part of the synthesis changes."""
+        hear one clip from many poses, and only the pose's part of the synthesis changes. One
+        clip of at most RENDER_BLOCK_FRAMES frames is kept (about 12 s, 11 MB)."""
         kept = self._clip
         if (kept is not None and kept[0].shape == x.shape and np.array_equal(kept[0], x)
                 and (kept[1] is None) == (decay is None) and (decay is None or torch.equal(kept[1], decay))):

@@ -57,12 +57,14 @@ def test_a_clip_heard_from_many_poses_is_analysed_once(tail_checkpoint, monkeypa
     """The renderer keeps the last clip's source analysis: the next pose of the same clip
     only does its own part, with the same output as a renderer that did not keep it; a
     changed clip (even changed in place by the caller) is analysed anew."""
+    import avgs.acoustics.synthesis
     import avgs.inference
     from avgs.inference import SceneRenderer
 
     calls = []
-    analyse = avgs.inference.source_parts
-    monkeypatch.setattr(avgs.inference, "source_parts", lambda *a, **k: calls.append(1) or analyse(*a, **k))
+    analyse = avgs.acoustics.synthesis.source_parts
+    for module in (avgs.inference, avgs.acoustics.synthesis):
+        monkeypatch.setattr(module, "source_parts", lambda *a, **k: calls.append(1) or analyse(*a, **k))
     r, other = SceneRenderer(tail_checkpoint()), SceneRenderer(tail_checkpoint())
     x = _speech_like(22050, seed=4)
     poses = [((2.0, 1.0, 1.6), 45.0), ((4.0, 3.0, 1.6), -120.0), ((1.0, 2.5, 1.6), 10.0)]
@@ -77,6 +79,10 @@ def test_a_clip_heard_from_many_poses_is_analysed_once(tail_checkpoint, monkeypa
     assert len(calls) == 1 and not np.array_equal(y, first[0])
     other.render(*poses[0], x[:3000])
     assert np.array_equal(other.render(*poses[0], x).binaural, y)
+    calls.clear()
+    long = _speech_like(13 * 22050, seed=5)  # a file rather than a clip: not kept
+    r.render(*poses[0], long), r.render(*poses[1], long)
+    assert len(calls) == 2
 
 
 def _speech_like(n, seed=0):
