@@ -536,8 +536,9 @@ class SceneRenderer:
             if mid:  # one retrieved phase for both ears (the default)
                 kept = stop - start == x.size and dsp.n_frames(x.size, self.stft) <= RENDER_BLOCK_FRAMES  # a clip, not a file
                 parts = self._clip_parts(x, piece, m32.decay) if kept else None
-                wave, ears = mid_phase_waveform(None if parts is not None else dsp.stft(piece[None], self.stft), m32, stop - start,
-                                                self.stft, synthesis, start // self.stft.hop_length, parts)
+                spec = None if parts is not None else dsp.stft(piece[None], self.stft)
+                wave, ears = mid_phase_waveform(spec, m32, stop - start, self.stft, synthesis,
+                                                start // self.stft.hop_length, parts)
                 if magnitudes:
                     mags = np.ascontiguousarray((ears[0].double().cpu().numpy() * scale).astype(np.float32))
                 y[:, lo:hi] = wave[0, :, lo - start : hi - start].float().cpu().numpy()

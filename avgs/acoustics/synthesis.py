@@ -212,13 +212,14 @@ def source_parts(mono_stft: torch.Tensor, decay: torch.Tensor | None = None, fir
     the absolute index of frame 0."""
     spec = mono_stft.transpose(-1, -2)  # [B, N, F]: contiguous for dsp.stft's output
     power = (spec * spec.conj()).real.contiguous()  # [B, N, F] |S|^2
+    magnitude = power.sqrt()
     if tail is not None:
         tail = tail.transpose(-1, -2).contiguous()  # [B, N, F]
     elif decay is not None and power.device.type == "cpu":  # the recursion: one loop over the frames
         tail = decayed_power(power, decay)[0]
     elif decay is not None:  # elsewhere (CUDA) the FFT convolution: a loop over frames is a launch per frame
-        tail = tail_power(power.transpose(-1, -2), decay, power.transpose(-1, -2)).transpose(-1, -2).contiguous()
-    return SourceParts(power, power.sqrt(), tail, start_phase(spec, power, first_frame, decay is not None))
+        tail = tail_power(magnitude.transpose(-1, -2), decay, power.transpose(-1, -2)).transpose(-1, -2).contiguous()
+    return SourceParts(power, magnitude, tail, start_phase(spec, power, first_frame, decay is not None))
 
 
 def pose_parts(source: SourceParts, masks: Masks):

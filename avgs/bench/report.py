@@ -143,7 +143,6 @@ POSE_TARGET_MS = 5.0
 "What a binaural-task pose (1 s clip, default synthesis) may cost on 2 CPU cores."
 
 
-
 def headline(summary: list[dict]) -> str:
     """Where the reference AV-GS point sits against the simulator's points."""
     avgs = [r for r in summary if r["family"] == "AV-GS vicinity"]
