@@ -340,7 +340,18 @@ class MainWindow(QtWidgets.QMainWindow):
     def _build_menus(self) -> None:
         """Menus whose keys come from ``help.KEYS`` (the Help dialog lists the same table)."""
         self.key_actions: dict[str, QtGui.QAction] = {}
-        file_menu = self.menuBar().addMenu("&File")
+        # The bar and its menus are made here, not taken from Qt's getters: a wrapper PySide hands
+        # back for a C++-made object can be a stale one of an object freed at the same address (a
+        # QOffscreenSurface of pyvistaqt's, once, in a full test run).
+        bar = QtWidgets.QMenuBar(self)
+        self.setMenuBar(bar)
+
+        def menu(title: str) -> QtWidgets.QMenu:
+            m = QtWidgets.QMenu(title, bar)
+            bar.addMenu(m)
+            return m
+
+        file_menu = menu("&File")
         self._action(file_menu, "&Open scene...", self.choose_scene, "open_scene")
         self._action(file_menu, "Open &clip...", self.choose_clip)
         file_menu.addSeparator()
@@ -348,7 +359,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.export_audio_action = self._action(file_menu, "Export &audio...", self.choose_audio_export)
         file_menu.addSeparator()
         self._action(file_menu, "&Quit", self.close, "quit")
-        view_menu = self.menuBar().addMenu("&View")
+        view_menu = menu("&View")
         for name, text in (("camera_home", "&Reset camera"), ("camera_top", "Camera from &top"),
                            ("camera_front", "Camera from &front"), ("camera_listener", "Camera from the &listener")):
             self._action(view_menu, text, lambda n=name: self.camera_preset(n), name)
@@ -361,7 +372,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.response_action = self._action(view_menu, "Impulse response &panel", self._toggle_response)
         self.response_action.setCheckable(True)
         self.response_action.setChecked(True)
-        help_menu = self.menuBar().addMenu("&Help")
+        help_menu = menu("&Help")
         self._action(help_menu, "&Keys and mouse", self.show_help, "help")
         self.help_dialog: QtWidgets.QMessageBox | None = None
 
