@@ -308,6 +308,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self._notice_timer.setSingleShot(True)
         self._notice_timer.setInterval(5000)
         self._notice_timer.timeout.connect(lambda: (self.position_notice.clear(), self.position_notice.setToolTip("")))
+        self.setStatusBar(QtWidgets.QStatusBar(self))  # made here: see _build_menus on Qt's getters
         self.statusBar().addPermanentWidget(self.position_notice)
         self.audio_status = QtWidgets.QLabel()
         self.statusBar().addPermanentWidget(self.audio_status)
