@@ -42,19 +42,6 @@ def _project(spec, target, floor, out):  # pragma: no cover - compiled
 
 
 @njit(**_LOOP)
-def _unit(spec, floor, one, out):  # pragma: no cover - compiled
-    """out = spec / max(|spec|, sqrt(floor)) (0 where spec is 0); [M, 2F] interleaved; ``one``: 1 in their dtype."""
-    m_rows, n2 = spec.shape
-    for m in range(m_rows):
-        x, o = spec[m], out[m]
-        for f in range(n2 // 2):
-            re, im = x[2 * f], x[2 * f + 1]
-            s = one / np.sqrt(max(re * re + im * im, floor))
-            o[2 * f] = re * s
-            o[2 * f + 1] = im * s
-
-
-@njit(**_LOOP)
 def _decayed(power, decay, state, out):  # pragma: no cover - compiled
     """out[m, t] = decay * (out[m, t-1] + power[m, t-1]), from state[m] = P(-1) + |S(-1)|^2; state updated."""
     m_rows, n, n_freq = power.shape
@@ -85,10 +72,12 @@ def project_magnitudes(spec: torch.Tensor, target: torch.Tensor | None = None) -
     x = torch.view_as_real(spec.contiguous()).reshape(-1, 2 * n_freq).numpy()
     out = torch.empty(spec.shape, dtype=spec.dtype)
     o = torch.view_as_real(out).view(-1, 2 * n_freq).numpy()
-    if target is None:
-        _unit(x, x.dtype.type(floor), x.dtype.type(1), o)
+    rows = x.shape[0]
+    if target is None:  # unit phasors: a target of ones, broadcast (no array of them is made)
+        tg = np.broadcast_to(np.ones(1, dtype=x.dtype), (rows, n_freq))
     else:
-        _project(x, target.expand(spec.shape).contiguous().reshape(-1, n_freq).numpy(), x.dtype.type(floor), o)
+        tg = target.expand(spec.shape).contiguous().reshape(rows, n_freq).numpy()
+    _project(x, tg, x.dtype.type(floor), o)
     return out
 
 
