@@ -334,7 +334,7 @@ class SynthesisConfig:
     predicted ear magnitudes (what MAG scores), with a phase:
 
     - ``mid`` (default): one phase, retrieved by fast Griffin-Lim (Perraudin et al. 2013;
-      :mod:`avgs.phase_retrieval`) for the mid magnitudes ``s_m`` from the source's phase, and
+      :mod:`avgs.dsp.phase_retrieval`) for the mid magnitudes ``s_m`` from the source's phase, and
       given to both ears, as the paper's masks give both ears the source's phase: half the
       cost of retrieving each ear's.
     - ``filter``: the phase of the input through the pose's filter, per ear.

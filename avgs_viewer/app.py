@@ -72,7 +72,7 @@ def run_headless(args: argparse.Namespace, scene: Path) -> int:
         # No X server: go straight to EGL rather than have VTK try X first and warn.
         os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
     from avgs import SceneRenderer
-    from avgs.atomic import check_output
+    from avgs.io.atomic import check_output
 
     from .audio import load_clip
     from .export import export_headless
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         check_picture_size(*args.size, args.scale, names=("--size", "--scale"))  # before any work: one line, not a page of GL errors
         scene = resolve_scene(args.scene)
         if args.bench is not None:
-            from avgs.atomic import check_output
+            from avgs.io.atomic import check_output
 
             from .bench import run_viewer_bench
 

@@ -39,8 +39,8 @@ ONCE_PEAK = 0.9
 # ---------------------------------------------------------------------- clips
 def load_clip(path: str | Path, sample_rate: int, max_seconds: float = 30.0) -> np.ndarray:
     """An audio file as mono float32 [T] at ``sample_rate``: down-mixed, resampled, trimmed
-    to ``max_seconds`` (:func:`avgs.audio_input.read_mono`)."""
-    from avgs.audio_input import read_mono
+    to ``max_seconds`` (:func:`avgs.io.audio_input.read_mono`)."""
+    from avgs.io.audio_input import read_mono
 
     return read_mono(path, sample_rate, max_seconds=max_seconds)
 

@@ -232,7 +232,7 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, idle_s: float = 5.0
 
     import torch
 
-    from avgs.atomic import write_text
+    from avgs.io.atomic import write_text
     from avgs.bench.machine import machine_info
 
     from .xinput import XInput

@@ -13,7 +13,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from avgs import atomic
+from avgs.io import atomic
 
 MAX_SCALE = 8
 MIN_SIZE, MAX_SIZE = 64, 8192  # window pixels before scaling

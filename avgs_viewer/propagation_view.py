@@ -1,9 +1,9 @@
 """The propagation map on the floor, and the listener's view of G in a corner of the 3D view.
 
-:class:`PropagationView` draws :mod:`avgs.propagation_map` (level or interaural level
+:class:`PropagationView` draws :mod:`avgs.render.propagation_map` (level or interaural level
 difference over a grid of listener positions, for the current source and yaw) as a
 coloured plane on the floor of any PyVista plotter, with a colour bar titled with its unit.
-The map (the fast one: :class:`avgs.propagation_map.FastMap`) is computed on its own daemon
+The map (the fast one: :class:`avgs.render.propagation_map.FastMap`) is computed on its own daemon
 thread, with :data:`MAP_WORKERS` threads under it, coarse to fine, and drawn as it fills in;
 a new source, yaw or listener height cancels the computation in progress (newest request
 wins). Listener moves in the plane do not change the map. Before each small chunk of
@@ -11,7 +11,7 @@ cells (32, some 20 ms of one core) the threads wait while the audio render worke
 (``audio_busy``), so the map does not hold up what the user hears.
 
 :class:`ListenerInset` shows G rendered from the listener's pose
-(:class:`avgs.listener_view.ListenerView`) as an image in the lower right corner of the 3D
+(:class:`avgs.render.listener_view.ListenerView`) as an image in the lower right corner of the 3D
 view, re-rendered on a background thread once the listener has stopped moving; it is part
 of the VTK scene, so screenshots include it. Only for checkpoints saved with G.
 
@@ -35,7 +35,7 @@ MAP_BATCH = 128
 "Cells per partial update of the map on screen."
 
 MAP_WORKERS = 2
-"""Threads computing the map (``workers`` of :func:`avgs.propagation_map.propagation_map`): two cores.
+"""Threads computing the map (``workers`` of :func:`avgs.render.propagation_map.propagation_map`): two cores.
 Each waits for the audio before every chunk of cells (``audio_busy``)."""
 
 MAP_OPACITY = 0.85
@@ -253,7 +253,7 @@ class PropagationView:
 
     def draw_now(self) -> Any:
         """Compute the whole map on this thread and draw it (headless export); returns it."""
-        from avgs.propagation_map import compute_map
+        from avgs.render.propagation_map import compute_map
 
         self.worker.cancel()
         key = self._key = self._pose_key()
@@ -286,7 +286,7 @@ class PropagationView:
         return tuple(float(v) for v in s.source), float(s.yaw), float(s.listener[2])
 
     def _compute(self, request, cancelled):
-        from avgs.propagation_map import propagation_map
+        from avgs.render.propagation_map import propagation_map
 
         source, yaw, z = request
         return propagation_map(self.scene, source=np.array(source), yaw=yaw, z=z, size=self.size, batch=MAP_BATCH,
@@ -364,7 +364,7 @@ class ListenerInset:
     """G seen from the listener, as an image in a corner of the 3D view; re-rendered on a
     background thread after the listener stops (``settle_ms`` without a pose change).
 
-    ``load_view()``: returns an :class:`avgs.listener_view.ListenerView` or None (run once, on
+    ``load_view()``: returns an :class:`avgs.render.listener_view.ListenerView` or None (run once, on
     the worker thread). ``timer``: a factory ``(ms, callback) -> object with start()/stop()``
     (a Qt single-shot timer in the window); None renders on every pose change.
     """
@@ -545,11 +545,11 @@ class MapControls:
 
 
 def _load_listener_view(path):
-    """:meth:`avgs.listener_view.ListenerView.load`, with no garbage collection while it runs: a
+    """:meth:`avgs.render.listener_view.ListenerView.load`, with no garbage collection while it runs: a
     collection on a worker thread could delete Qt or VTK objects off the GUI thread (window.py)."""
     import gc
 
-    from avgs.listener_view import ListenerView
+    from avgs.render.listener_view import ListenerView
 
     collecting = gc.isenabled()
     gc.disable()

@@ -6,7 +6,7 @@ filter (the binaural task: by default one phase retrieved for the mid magnitudes
 MAG 0.128 against the filter's 0.181 over our five scenes, benchmarks/syntheses.md) the
 filter is the fast approximation. Once a pose has held for ``settle`` seconds,
 :class:`LoopRefiner` renders the looped clip at it with the renderer's stream
-(:meth:`avgs.inference.SceneRenderer.stream`) and hands it to the engine
+(:meth:`avgs.render.renderer.SceneRenderer.stream`) and hands it to the engine
 (:meth:`~avgs_viewer.audio.StreamEngine.set_loop`), which crossfades to it over one block.
 
 The loop is periodic, so its render is too: the stream is fed the loop over and over
@@ -58,7 +58,7 @@ def refines(renderer: Any) -> bool:
 def periods_before(renderer: Any, period: int) -> int:
     """Periods of a loop ``period`` samples long that the one kept needs before it: those that
     reach it through the tail, the STFT window and the phase iterations (:meth:`SceneRenderer.reach_frames
-    <avgs.inference.SceneRenderer.reach_frames>`)."""
+    <avgs.render.renderer.SceneRenderer.reach_frames>`)."""
     stft = renderer.stft
     reach = renderer.reach_frames() * stft.hop_length + stft.n_fft  # input samples an output sample hears back
     return math.ceil(reach / period)

@@ -2,8 +2,8 @@
 
 A pose's filter is its binaural impulse response ``[2, L]`` (``RenderResult.impulse``,
 channel 0 = left ear). :class:`ResponseSummary` holds it with each ear's energy decay
-curve (Schroeder backward integration, :func:`avgs.metrics.schroeder_db`) and reverberation
-time (:func:`avgs.metrics.rt60`, the T60 that ``avgs eval`` scores); :meth:`ResponseSummary.trace`
+curve (Schroeder backward integration, :func:`avgs.evaluation.metrics.schroeder_db`) and reverberation
+time (:func:`avgs.evaluation.metrics.rt60`, the T60 that ``avgs eval`` scores); :meth:`ResponseSummary.trace`
 decimates both to a few hundred columns for drawing (each column the minimum and maximum of
 the samples it covers, so no peak is lost however long the response).
 """
@@ -44,7 +44,7 @@ class ResponseSummary:
     def of(cls, impulse: np.ndarray, sample_rate: int, t60: bool = True) -> "ResponseSummary":
         """The summary of ``impulse [2, L]`` at ``sample_rate`` Hz; ``t60=False`` leaves the
         reverberation time out (a few ms less: the explorer measures it once a move ends)."""
-        from avgs.metrics import rt60, schroeder_db
+        from avgs.evaluation.metrics import rt60, schroeder_db
 
         h = np.array(impulse, dtype=np.float32)  # a copy: the caller's array may be reused
         if h.ndim != 2 or h.shape[0] != 2 or h.shape[1] == 0:

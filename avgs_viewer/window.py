@@ -442,7 +442,7 @@ class MainWindow(QtWidgets.QMainWindow):
             gc.disable()
             try:
                 from avgs import SceneRenderer  # torch is imported here, off the GUI thread
-                from avgs.metrics import rt60
+                from avgs.evaluation.metrics import rt60
 
                 renderer = SceneRenderer.load(path)
                 rt60(np.zeros(1))  # its imports too (the response panel's T60), not on the GUI thread

@@ -1,4 +1,4 @@
-"""Time the propagation map (avgs.propagation_map) of a checkpoint, measure the fast map's error
+"""Time the propagation map (avgs.render.propagation_map) of a checkpoint, measure the fast map's error
 against the exact one, and write a short report.
 
     .venv/bin/python scripts/bench_propagation_map.py --threads 1 2 --workers 1 2 --runs 3 \
@@ -27,7 +27,8 @@ import torch
 
 from avgs import SceneRenderer
 from avgs.bench.machine import cpu_name
-from avgs.propagation_map import FastMap, bin_subset, compute_map, early_frames, frame_nodes, propagation_map
+from avgs.render.cells import FastMap, bin_subset, early_frames, frame_nodes
+from avgs.render.propagation_map import compute_map, propagation_map
 
 DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
 
@@ -83,7 +84,7 @@ def main() -> None:
     p.add_argument("--out", type=Path, default=None, help="write the report here (markdown)")
     a = p.parse_args()
     if a.out is not None:
-        from avgs import atomic
+        from avgs.io import atomic
 
         atomic.check_output(a.out, what="report")
     r = SceneRenderer.load(a.checkpoint)

@@ -1,5 +1,5 @@
 """How well checkpoints place a source left or right: their interaural level difference
-(ILD above 1.5 kHz, :func:`avgs.metrics.ild`) against the ground truth.
+(ILD above 1.5 kHz, :func:`avgs.evaluation.metrics.ild`) against the ground truth.
 
 Two sets of poses, neither seen in training:
 
@@ -23,9 +23,9 @@ import math
 import numpy as np
 from scipy.signal import fftconvolve
 
-from avgs import metrics
+from avgs.evaluation import metrics
 from avgs.data.rwavs import RWAVSScene
-from avgs.evaluate import CheckpointMethod
+from avgs.evaluation.binaural import CheckpointMethod
 
 
 def probe_poses(scene_dir: str, n: int, mono: np.ndarray, seed: int = 0):

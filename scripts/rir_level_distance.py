@@ -22,7 +22,7 @@ settings (``scene.json`` ``rir.simulation``), the recorded delay cut off the fro
 the scene's length, exactly as ``avgs synth --task rir`` wrote the training responses.
 Predictions: ``SceneRenderer.predict_responses`` of the AV-GS and the ``--no-context``
 checkpoints of one sweep seed (``RUNS/<scene>/<setting>/seed<k>/scene.ckpt``), and the
-``nearest`` baseline (:mod:`avgs.rir_baselines`) on the scene's training responses.
+``nearest`` baseline (:mod:`avgs.evaluation.interpolation`) on the scene's training responses.
 
 Level: ``10 log10`` of the energy of the response (whole length), averaged over both ears
 and the listener orientations ``--yaws`` (the scene's four by default, so the head's shadow
@@ -48,13 +48,13 @@ from pathlib import Path
 
 import numpy as np
 
-from avgs.atomic import atomic_path, check_output, write_text
+from avgs.io.atomic import atomic_path, check_output, write_text
 from avgs.data.rir import RIRScene, RIRSet
 from avgs.data.synth.poses import is_walkable
 from avgs.data.synth.presets import SceneSpec
 from avgs.data.synth.simulate import SimSettings, load_spec, receiver_rirs
-from avgs.inference import SceneRenderer
-from avgs.rir_baselines import INTERPOLATIONS
+from avgs.render.renderer import SceneRenderer
+from avgs.evaluation.interpolation import INTERPOLATIONS
 
 SOURCES_PER_ROOM = 3
 "Sources simulated in one pyroomacoustics room (as ``avgs synth --task rir``: bounds the ray tracer's memory)."
@@ -248,7 +248,7 @@ def predicted(renderer: SceneRenderer, sources, listener, yaws) -> np.ndarray:
 
 
 def interpolated(method: str, scene: RIRScene, sources, listener, yaws) -> np.ndarray:
-    """A baseline of :mod:`avgs.rir_baselines` on the training responses: ``[S, O, 2, L]``."""
+    """A baseline of :mod:`avgs.evaluation.interpolation` on the training responses: ``[S, O, 2, L]``."""
     src = scene.frame.to_normalised(np.asarray(sources, dtype=np.float64).reshape(-1, 3))
     lis = scene.frame.to_normalised(np.asarray(listener, dtype=np.float64).reshape(1, 3))
     s, o = len(src), len(yaws)

@@ -6,7 +6,7 @@ Usage::
         --scene data/presets/office_0=runs/presets/office_0.ckpt --scene ... [--out table.md] [--threads 2]
 
 For every scene (``DATA_ROOT/SCENE=CHECKPOINT``, a binaural-task checkpoint) and synthesis
-(:data:`SYNTHESES`): MAG and ENV over the scene's val clips (:func:`avgs.evaluate.score_scene`,
+(:data:`SYNTHESES`): MAG and ENV over the scene's val clips (:func:`avgs.evaluation.binaural.score_scene`,
 as ``avgs eval`` scores them), and the time of one pose (``SceneRenderer.render`` of its 1 s
 clip, masks included), the syntheses taking turns clip by clip so that they share the
 machine's load. Prints a markdown table per scene and the mean over scenes, with the
@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from avgs import metrics
+from avgs.evaluation import metrics
 from avgs.config import MID_PHASE_ITERATIONS, SynthesisConfig
 from avgs.data.rwavs import RWAVSScene
-from avgs.inference import SceneRenderer
+from avgs.render.renderer import SceneRenderer
 
 SYNTHESES = {
     "the pose's filter (`--synthesis filter`)": SynthesisConfig(method="filter"),

@@ -81,7 +81,7 @@ def _tail_checkpoint() -> dict:
     import numpy as np
     import torch
 
-    from avgs.checkpoint import untrained_checkpoint
+    from avgs.io.checkpoint import untrained_checkpoint
     from avgs.data.frame import SceneFrame
 
     room = np.array([[0.0, 0.0, 0.0], [6.0, 4.0, 3.0]])
@@ -104,6 +104,6 @@ def tail_checkpoint():
 @pytest.fixture(scope="session")
 def tail_renderer():
     """A renderer whose tail is loud and pose-dependent (random head weights, RT60 0.2-0.8 s)."""
-    from avgs.inference import SceneRenderer
+    from avgs.render.renderer import SceneRenderer
 
     return SceneRenderer(_tail_checkpoint())

@@ -294,9 +294,9 @@ def test_post_conv_with_a_zero_residual_is_the_plain_mask_path():
 
 
 def test_post_conv_model_trains_renders_any_length_and_refuses_block_streaming(tmp_path):
-    from avgs.checkpoint import save_checkpoint, untrained_checkpoint
+    from avgs.io.checkpoint import save_checkpoint, untrained_checkpoint
     from avgs.config import TrainConfig
-    from avgs.inference import SceneRenderer
+    from avgs.render.renderer import SceneRenderer
 
     cfg = TrainConfig()
     cfg.acoustic.post_conv = True

@@ -7,8 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from avgs import dsp, evaluate, metrics
-from avgs.baselines import BASELINES, mono_energy, mono_mono, oracle_mask, stereo_energy
+from avgs import dsp
+from avgs.evaluation import binaural as evaluate, metrics
+from avgs.evaluation.baselines import BASELINES, mono_energy, mono_mono, oracle_mask, stereo_energy
 from avgs.cli import main
 from avgs.data.rwavs import RWAVSScene
 from rwavs_writer import write_scene
@@ -182,7 +183,7 @@ def test_cli_scene_selection_defaults_and_errors(data_root, tmp_path, capsys):
 
 
 def test_a_folder_of_checkpoints_is_one_method_each_scoring_its_own_scene(data_root, tmp_path):
-    from avgs.checkpoint import save_checkpoint, untrained_checkpoint
+    from avgs.io.checkpoint import save_checkpoint, untrained_checkpoint
 
     folder = tmp_path / "runs"
     for name in ("office_1", "garden-1"):

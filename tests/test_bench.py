@@ -96,7 +96,7 @@ def test_interleaved_timing_takes_turns_in_blocks():
 
 def test_the_syntheses_are_timed_on_the_same_poses(one_source_ckpt):
     from avgs.bench.speed_error import synthesis_latencies
-    from avgs.inference import SceneRenderer
+    from avgs.render.renderer import SceneRenderer
 
     seen = []
 
@@ -121,7 +121,7 @@ def test_the_default_is_also_timed_with_a_new_clip_at_every_pose(one_source_ckpt
     """The bench's one-clip renders keep the clip's analysis (the explorer's case); beside them
     the default is timed with a clip no call before it used, on the same poses."""
     from avgs.bench.speed_error import NEW_CLIP, synthesis_latencies
-    from avgs.inference import SceneRenderer
+    from avgs.render.renderer import SceneRenderer
 
     heard = {"same": [], "new": []}
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from avgs.checkpoint import (
+from avgs.io.checkpoint import (
     FORMAT_VERSION,
     load_checkpoint,
     outline_from_metadata,
@@ -16,7 +16,7 @@ from avgs.checkpoint import (
     untrained_checkpoint,
 )
 from avgs.data.frame import SceneFrame
-from avgs.inference import SceneRenderer
+from avgs.render.renderer import SceneRenderer
 
 ROOM = np.array([[0.0, 0.0, 0.0], [6.0, 4.0, 3.0]])
 SOURCE = np.array([4.5, 2.5, 1.2])
@@ -168,7 +168,7 @@ def test_atomic_writes_leave_nothing_half_written_and_get_normal_permissions(tmp
     import os
     import stat
 
-    from avgs.atomic import atomic_path, write_text
+    from avgs.io.atomic import atomic_path, write_text
 
     path = write_text(tmp_path / "a.txt", "hello")
     mask = os.umask(0)

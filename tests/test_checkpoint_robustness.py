@@ -4,7 +4,7 @@ status 2 from the command line (``avgs info``, ``render``, ``prune``, ``eval --m
 
 A table of corruptions of a valid checkpoint (with a training state) goes through the real
 CLI; byte-level damage (truncation, bit flips, other files) too; a hypothesis property test
-mutates the checkpoint dict at random and requires :func:`avgs.checkpoint.load_checkpoint`
+mutates the checkpoint dict at random and requires :func:`avgs.io.checkpoint.load_checkpoint`
 to either refuse it with ValueError or give a checkpoint the renderer turns into finite audio.
 """
 
@@ -28,7 +28,7 @@ from hypothesis import strategies as st
 from rwavs_writer import write_scene
 
 from avgs.acoustics.points import AudioPoints
-from avgs.checkpoint import (
+from avgs.io.checkpoint import (
     FORMAT_VERSION,
     checkpoint_digest,
     load_checkpoint,
@@ -36,7 +36,7 @@ from avgs.checkpoint import (
     untrained_checkpoint,
 )
 from avgs.cli import main as cli_main
-from avgs.inference import SceneRenderer
+from avgs.render.renderer import SceneRenderer
 from avgs.train.pipeline import quick_config, train_scene
 
 ITERATIONS = 3

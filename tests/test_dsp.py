@@ -50,7 +50,7 @@ def test_numpy_input_and_frame_count():
 
 
 def test_window_cached_under_inference_mode_still_works_with_autograd():
-    dsp._window.cache_clear()
+    dsp.window.cache_clear()
     with torch.inference_mode():
         dsp.stft(torch.randn(1000))  # first use caches the window
     x = torch.randn(1000, requires_grad=True)

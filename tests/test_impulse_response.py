@@ -60,7 +60,7 @@ def test_tail_energy_per_bin_is_the_mask_models_and_decays_at_its_rt60():
     tail = shaper(masks.reverb)[0]  # [2, L]
     w = masks.decay
     frames = dsp.stft(tail, STFT).abs().square()  # [2, F, K]
-    energy = frames.sum(-1) * STFT.hop_length / dsp._window(STFT.win_length, "cpu", torch.float64).square().sum()
+    energy = frames.sum(-1) * STFT.hop_length / dsp.window(STFT.win_length, "cpu", torch.float64).square().sum()
     expected = 0.25 * w / (1 - w)  # r^2 w / (1 - w)
     ratio = energy / expected
     assert float(ratio.median()) == pytest.approx(1.0, rel=0.05)
@@ -141,9 +141,9 @@ def test_a_new_response_is_crossfaded_over_one_block_then_used_alone():
 
 
 def test_renderer_filter_is_what_render_convolves(tmp_path):
-    from avgs.checkpoint import untrained_checkpoint
+    from avgs.io.checkpoint import untrained_checkpoint
     from avgs.config import SynthesisConfig
-    from avgs.inference import SceneRenderer
+    from avgs.render.renderer import SceneRenderer
 
     g = torch.Generator().manual_seed(0)
     ckpt = untrained_checkpoint(torch.rand(400, 3, generator=g) * 2 - 1, torch.tensor([0.2, 0.1, 0.0]), seed=1)
@@ -160,8 +160,8 @@ def test_renderer_filter_is_what_render_convolves(tmp_path):
 
 
 def test_a_stream_moved_to_another_pose_settles_on_that_poses_output():
-    from avgs.checkpoint import untrained_checkpoint
-    from avgs.inference import SceneRenderer
+    from avgs.io.checkpoint import untrained_checkpoint
+    from avgs.render.renderer import SceneRenderer
 
     g = torch.Generator().manual_seed(0)
     r = SceneRenderer(untrained_checkpoint(torch.rand(400, 3, generator=g) * 2 - 1, torch.tensor([0.2, 0.1, 0.0]), seed=1))

@@ -1,4 +1,4 @@
-"""The compiled loops of avgs.kernels against known values and against the torch expressions
+"""The compiled loops of avgs.dsp.kernels against known values and against the torch expressions
 they replace (which still run for tensors they do not take: CUDA, autograd)."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from avgs.kernels import decayed_power, project_magnitudes
+from avgs.dsp.kernels import decayed_power, project_magnitudes
 
 
 def _spec(shape, dtype, seed=0):

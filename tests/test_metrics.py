@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from avgs import metrics
+from avgs.evaluation import metrics
 
 FS = 22050
 

@@ -1,5 +1,5 @@
 """The default synthesis: one phase retrieved for the mid magnitudes, shared by both ears
-(avgs.acoustics.synthesis.mid_phase_waveform), and its block stream (avgs.mid_phase_stream)."""
+(avgs.acoustics.synthesis.mid_phase_waveform), and its block stream (avgs.render.mid_phase_stream)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import torch
 from avgs import dsp
 from avgs.acoustics.synthesis import Masks, ear_magnitudes, mid_phase_waveform, pose_parts, source_parts
 from avgs.config import MID_PHASE_ITERATIONS, SynthesisConfig
-from avgs.mid_phase_stream import MidPhaseStream
+from avgs.render.mid_phase_stream import MidPhaseStream
 
 F = dsp.STFT.n_freq
 
@@ -58,12 +58,12 @@ def test_a_clip_heard_from_many_poses_is_analysed_once(tail_checkpoint, monkeypa
     only does its own part, with the same output as a renderer that did not keep it; a
     changed clip (even changed in place by the caller) is analysed anew."""
     import avgs.acoustics.synthesis
-    import avgs.inference
-    from avgs.inference import SceneRenderer
+    import avgs.render.renderer
+    from avgs.render.renderer import SceneRenderer
 
     calls = []
     analyse = avgs.acoustics.synthesis.source_parts
-    for module in (avgs.inference, avgs.acoustics.synthesis):
+    for module in (avgs.render.renderer, avgs.acoustics.synthesis):
         monkeypatch.setattr(module, "source_parts", lambda *a, **k: calls.append(1) or analyse(*a, **k))
     r, other = SceneRenderer(tail_checkpoint()), SceneRenderer(tail_checkpoint())
     x = _speech_like(22050, seed=4)

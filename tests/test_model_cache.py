@@ -88,8 +88,8 @@ def test_cache_is_only_a_cache():
 
 def test_the_renderer_runs_the_model_with_its_caches(tmp_path):
     """SceneRenderer's masks are the uncached model's masks for the same pose."""
-    from avgs.checkpoint import save_checkpoint, untrained_checkpoint
-    from avgs.inference import SceneRenderer
+    from avgs.io.checkpoint import save_checkpoint, untrained_checkpoint
+    from avgs.render.renderer import SceneRenderer
 
     rng = np.random.default_rng(0)
     path = save_checkpoint(untrained_checkpoint(rng.uniform(0, 4, (400, 3)), [2.0, 1.0, 1.0]), tmp_path / "s.ckpt")

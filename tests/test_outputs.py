@@ -1,5 +1,5 @@
 """No output a user names can destroy an input, replace a non-file or end in a traceback
-(:func:`avgs.atomic.check_output`, :func:`avgs.atomic.atomic_path`)."""
+(:func:`avgs.io.atomic.check_output`, :func:`avgs.io.atomic.atomic_path`)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from avgs.atomic import TEMP_MARK, OutputError, atomic_path, check_output, write_text
-from avgs.checkpoint import save_checkpoint, untrained_checkpoint
+from avgs.io.atomic import TEMP_MARK, OutputError, atomic_path, check_output, write_text
+from avgs.io.checkpoint import save_checkpoint, untrained_checkpoint
 from avgs.cli import main as cli_main
 
 
@@ -90,7 +90,7 @@ def test_train_refuses_to_write_into_its_own_scene(quick_scene, capsys):
 
 def test_a_killed_save_leaves_a_temporary_file_that_the_next_save_removes(tmp_path):
     target = tmp_path / "scene.json"
-    code = (f"import os, signal\nfrom avgs.atomic import atomic_path\n"
+    code = (f"import os, signal\nfrom avgs.io.atomic import atomic_path\n"
             f"with atomic_path({str(target)!r}) as tmp:\n    tmp.write_text('half')\n    os.kill(os.getpid(), signal.SIGKILL)\n")
     subprocess.run([sys.executable, "-c", code], check=False)
     left = [p for p in tmp_path.iterdir() if TEMP_MARK in p.name]
@@ -138,14 +138,14 @@ def test_a_full_disk_is_one_clear_error_and_leaves_nothing(files, tmp_path, caps
     """ENOSPC while writing (simulated: root can write anywhere, and no test fills a disk)."""
     import errno
 
-    import avgs.atomic
+    import avgs.io.atomic
 
     d, ckpt, wav = files
 
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(avgs.atomic.os, "replace", full)
+    monkeypatch.setattr(avgs.io.atomic.os, "replace", full)
     code, err = run_cli(render(ckpt, wav, tmp_path / "out.wav"), capsys)
     assert code == 2 and "cannot write" in err and "No space left" in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []  # the temporary file is gone too

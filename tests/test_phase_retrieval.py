@@ -1,4 +1,4 @@
-"""Phase retrieval (avgs.phase_retrieval): the frame-major STFT pair against torch's, and
+"""Phase retrieval (avgs.dsp.phase_retrieval): the frame-major STFT pair against torch's, and
 fast Griffin-Lim's convergence, blocks and settings."""
 
 import numpy as np
@@ -7,7 +7,7 @@ import torch
 
 from avgs import dsp
 from avgs.config import STFTConfig
-from avgs.phase_retrieval import FrameGrid, _griffin_lim_plain, griffin_lim, retrieve_phase
+from avgs.dsp.phase_retrieval import FrameGrid, _griffin_lim_plain, griffin_lim, retrieve_phase
 
 
 def _noise(shape, seed):

@@ -1,4 +1,4 @@
-"""The propagation map (avgs.propagation_map): the exact map against the single-pose path, the fast
+"""The propagation map (avgs.render.propagation_map): the exact map against the single-pose path, the fast
 map against the exact one, on the bundled demo scene (impulse responses) and a one-source mask model."""
 
 from __future__ import annotations
@@ -13,11 +13,9 @@ import pytest
 import torch
 
 from avgs import SceneRenderer
-from avgs.inference import HeadroomLimited
-from avgs.propagation_map import (
-    FastMap, bin_subset, coarse_to_fine, compute_map, early_frames, ear_power, floor_grid, frame_interpolation, frame_nodes,
-    pose_levels, power_levels, propagation_map,
-)
+from avgs.render.renderer import HeadroomLimited
+from avgs.render.cells import FastMap, bin_subset, early_frames, ear_power, frame_interpolation, frame_nodes, pose_levels, power_levels
+from avgs.render.propagation_map import coarse_to_fine, compute_map, floor_grid, propagation_map
 
 DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
 FAST_TOLERANCE_DB = 0.3
@@ -39,11 +37,6 @@ def renderer(request, one_source_ckpt):
 def binaural(one_source_ckpt):
     torch.set_num_threads(1)
     return SceneRenderer.load(one_source_ckpt)
-
-
-def decay_of(r):
-    tail = None if r.task == "rir" else r.model.binauralizer.reverb
-    return None if tail is None else tail.decay()
 
 
 def test_ear_power_closed_forms():
@@ -77,7 +70,7 @@ def test_map_cells_equal_the_single_pose_masks(renderer):
     assert pmap.complete and np.all(np.isfinite(pmap.level)) and np.all(np.isfinite(pmap.ild))
     positions = pmap.grid.positions()
     for flat in (0, 9, 27, 40, 63):
-        level, ild = pose_levels(r.masks(positions[flat], 30.0, source=source), decay_of(r))
+        level, ild = pose_levels(r.masks(positions[flat], 30.0, source=source))
         iy, ix = divmod(flat, 8)
         assert pmap.level[iy, ix] == pytest.approx(level, abs=1e-4)
         assert pmap.ild[iy, ix] == pytest.approx(ild, abs=1e-4)
@@ -93,7 +86,7 @@ def test_map_applies_the_renderers_headroom(one_source_ckpt):
     pmap = compute_map(r, yaw=0.0, z=1.5, size=2, exact=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", HeadroomLimited)
-        level, ild = pose_levels(r.masks(pmap.grid.positions()[3], 0.0), decay_of(r))
+        level, ild = pose_levels(r.masks(pmap.grid.positions()[3], 0.0))
     assert pmap.level[1, 1] == pytest.approx(level, abs=1e-4) and pmap.ild[1, 1] == pytest.approx(ild, abs=1e-4)
     fast = compute_map(r, yaw=0.0, z=1.5, size=2)  # near the limit: evaluated at every bin, as exact
     assert np.allclose(fast.level, pmap.level, atol=1e-4) and np.allclose(fast.ild, pmap.ild, atol=1e-4)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from avgs.prune import (
+from avgs.render.prune import (
     cell_centres,
     checkpoint_bytes,
     current_k,
@@ -14,10 +14,10 @@ from avgs.prune import (
     prune_checkpoint,
     subsample_checkpoint,
 )
-from avgs.checkpoint import load_checkpoint, save_checkpoint, untrained_checkpoint
+from avgs.io.checkpoint import load_checkpoint, save_checkpoint, untrained_checkpoint
 from avgs.cli import main as cli_main
 from avgs.data.frame import SceneFrame
-from avgs.inference import SceneRenderer
+from avgs.render.renderer import SceneRenderer
 
 ROOM = np.array([[0.0, 0.0, 0.0], [6.0, 4.0, 3.0]])
 SOURCE = np.array([4.5, 2.5, 1.2])

@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from avgs.checkpoint import load_checkpoint
+from avgs.io.checkpoint import load_checkpoint
 from avgs.train import pipeline
 from avgs.train.logging import log_paths
 from avgs.train.pipeline import quick_config, train_scene
@@ -207,7 +207,7 @@ def test_killed_runs_resume_bit_identically(quick_scene, tmp_path):
 
 
 def test_resume_refuses_a_checkpoint_without_the_tasks_training_state(one_source_ckpt, tmp_path):
-    from avgs.checkpoint import save_checkpoint, untrained_checkpoint
+    from avgs.io.checkpoint import save_checkpoint, untrained_checkpoint
     from avgs.config import TrainConfig
     from avgs.train.pipeline import resume_from
 

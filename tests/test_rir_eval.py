@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from avgs import codecs, evaluate, evaluate_rir, metrics, rir_baselines
+from avgs.evaluation import binaural as evaluate, codecs, impulse_response as evaluate_rir, interpolation as rir_baselines, metrics
 from avgs.cli import main
 from avgs.commands.eval import RIR_DEFAULT_METHODS
 from avgs.data.rir import RIRScene, RIRSet

@@ -19,11 +19,11 @@ import torch
 
 from avgs import dsp
 from avgs.acoustics.rir_binauralizer import RIRBinauralizer, orientation_feature
-from avgs.acoustics.rir_model import ear_transfer, masks_of_gains, response_waveform
-from avgs.checkpoint import load_checkpoint, save_checkpoint, untrained_checkpoint
+from avgs.acoustics.rir_model import ear_transfer, response_waveform
+from avgs.io.checkpoint import load_checkpoint, save_checkpoint, untrained_checkpoint
 from avgs.cli import main as cli_main
 from avgs.config import STFT, RIRConfig
-from avgs.inference import OneSourceModel, SceneRenderer
+from avgs.render.renderer import OneSourceModel, SceneRenderer
 
 ITERATIONS = 200
 "Iterations of the fixture's quick training (a few seconds at the quick width)."
@@ -83,14 +83,12 @@ def test_ear_transfer_of_an_impulse_is_its_gain():
     gains = ear_transfer(dsp.magnitude(h), STFT)  # [2, F]
     assert torch.allclose(gains[0], torch.full_like(gains[0], 0.5), rtol=1e-6)
     assert torch.allclose(gains[1], torch.full_like(gains[1], 0.25), rtol=1e-6)
-    mixture, difference = masks_of_gains(gains)
-    assert torch.allclose(mixture * (1 + difference), gains[0]) and torch.allclose(mixture * (1 - difference), gains[1])
 
 
 def test_response_waveform_keeps_the_energy_envelope():
     """A decaying noise response: the waveform rebuilt from its STFT magnitudes alone has the same
     energy per frame (within 1.5 dB where it matters) and the same decay (T60 within 10 %)."""
-    from avgs.metrics import rt60
+    from avgs.evaluation.metrics import rt60
 
     g = np.random.default_rng(0)
     t = np.arange(11025) / STFT.sample_rate
@@ -214,7 +212,8 @@ def test_render_with_a_source_convolves_with_the_predicted_response(renderer):
     f = r.binaural_filter(lis, 40.0, src)
     L = r.config.rir.length
     assert f.impulse.shape == (2, L) and f.impulse.dtype == np.float32 and np.all(np.isfinite(f.impulse))
-    assert f.mixture.shape == (r.n_freq,) and f.listener_vicinity.shape == f.source_vicinity.shape == (r.vicinity_size,)
+    assert f.gains.shape == (2, r.n_freq) and f.mixture is None  # the response's own gains: no masks
+    assert f.listener_vicinity.shape == f.source_vicinity.shape == (r.vicinity_size,)
     unit = np.zeros(L + 500, np.float32)
     unit[0] = 1.0
     out = r.render(lis, 40.0, unit, source=src)
@@ -261,7 +260,8 @@ def test_continuous_yaw(renderer):
 
 
 def test_propagation_map_masks_and_stream_work_on_an_rir_checkpoint(renderer):
-    from avgs.propagation_map import compute_map, pose_levels
+    from avgs.render.cells import pose_levels
+    from avgs.render.propagation_map import compute_map
 
     r = renderer
     src = r.training_sources[0]

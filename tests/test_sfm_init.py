@@ -118,7 +118,7 @@ def test_init_source_and_stage1_key():
 
 
 def test_stripped_scene_trains_end_to_end_with_sfm_init(scenes, tmp_path):
-    from avgs.checkpoint import load_checkpoint
+    from avgs.io.checkpoint import load_checkpoint
     from avgs.cli import main
 
     stripped = scenes[1]

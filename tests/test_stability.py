@@ -23,10 +23,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from avgs.acoustics.points import AudioPoints, alpha_from_features
-from avgs.checkpoint import untrained_checkpoint
+from avgs.io.checkpoint import untrained_checkpoint
 from avgs.config import STFT, AcousticConfig, SynthesisConfig, TrainConfig
 from avgs.data.frame import SceneFrame
-from avgs.inference import HEADROOM_DB, HeadroomLimited, OneSourceModel, PositionClamped, SceneRenderer
+from avgs.render.renderer import HEADROOM_DB, HeadroomLimited, OneSourceModel, PositionClamped, SceneRenderer
 from avgs.acoustics.synthesis import Masks, ear_gains
 from avgs.acoustics.convolution import BlockConvolver, ConvolutionStream
 from avgs.train.losses import volume_loss
@@ -399,13 +399,13 @@ def test_non_finite_weights_are_an_error_not_silence():
 def test_a_long_input_rendered_in_blocks_equals_one_pass(renderer, iterations, monkeypatch):
     """Long inputs are rendered block by block with a margin that covers the tail and the
     phase iterations (bounded memory); the result is the one-pass render."""
-    import avgs.inference
+    import avgs.render.renderer
 
     r = SceneRenderer(room_checkpoint(), synthesis=SynthesisConfig(method="spectrogram", phase_iterations=iterations))
     x = noise(12 * SR, seed=3)
     x[5 * SR : 6 * SR] = 0.0  # exact silence: the tail's fill phase must follow the absolute frame
     one_pass = r.render((2.0, 2.0, 1.6), 40.0, x).binaural
-    monkeypatch.setattr(avgs.inference, "RENDER_BLOCK_FRAMES", 300)  # ~1.7 s blocks: several of them
+    monkeypatch.setattr(avgs.render.binaural, "RENDER_BLOCK_FRAMES", 300)  # ~1.7 s blocks: several of them
     blocked = r.render((2.0, 2.0, 1.6), 40.0, x).binaural
     # Float rounding, amplified: the tail's power is an FFT convolution whose rounding is
     # relative to the loudest frame, and its square root turns a 1e-9 power error in the
@@ -421,7 +421,7 @@ def test_a_long_input_rendered_in_blocks_equals_one_pass(renderer, iterations, m
 def test_audio_files_with_absurd_headers_are_refused(tmp_path):
     import soundfile as sf
 
-    from avgs.audio_input import read_mono
+    from avgs.io.audio_input import read_mono
 
     for rate in (1, 2000, 1_000_000):
         path = tmp_path / f"r{rate}.wav"

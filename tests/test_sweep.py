@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from avgs.atomic import write_json
+from avgs.io.atomic import write_json
 from avgs.cli import main
-from avgs.evaluate import CheckpointMethod, aggregate, evaluate
+from avgs.evaluation.binaural import CheckpointMethod, aggregate, evaluate
 from avgs.sweep import results
 from avgs.sweep.driver import check_resources
 from avgs.sweep.spec import SweepSpec, expand, make_spec

@@ -8,7 +8,7 @@ import pytest
 
 from avgs.config import MID_PHASE_ITERATIONS, SynthesisConfig
 from avgs.data.rwavs import RWAVSScene
-from avgs.evaluate import CheckpointMethod, score_scene
+from avgs.evaluation.binaural import CheckpointMethod, score_scene
 
 
 def _script():

@@ -17,11 +17,11 @@ import soundfile as sf
 import torch
 
 from avgs.acoustics.points import AudioPoints
-from avgs.checkpoint import load_checkpoint, save_checkpoint, untrained_checkpoint
+from avgs.io.checkpoint import load_checkpoint, save_checkpoint, untrained_checkpoint
 from avgs.cli import main as cli_main
 from avgs.config import PointManagementConfig
-from avgs.inference import SceneRenderer
-from avgs.point_management import AudioPointManager, radius_inliers, update_points
+from avgs.render.renderer import SceneRenderer
+from avgs.train.point_management import AudioPointManager, radius_inliers, update_points
 from avgs.train.logging import log_paths
 from avgs.train.pipeline import quick_config, train_scene
 from avgs.train.stage2 import lr_factor
@@ -355,7 +355,7 @@ def test_every_training_field_is_a_flag_with_its_docstring_as_help():
 
 def test_validation_mag_in_the_log_is_what_avgs_eval_scores(trained):
     """Stage 2 validates with the renderer's default synthesis, so the logged val_mag is avgs eval's MAG."""
-    from avgs import evaluate
+    from avgs.evaluation import binaural as evaluate
     from avgs.data.rwavs import RWAVSScene
 
     scene, out, final = trained

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from avgs.checkpoint import save_checkpoint, untrained_checkpoint
-from avgs.inference import SceneRenderer
+from avgs.io.checkpoint import save_checkpoint, untrained_checkpoint
+from avgs.render.renderer import SceneRenderer
 from avgs_viewer import audio
 from avgs_viewer.audio import AudioOutput, ClipSpectrum, StreamEngine, filter_levels
 from avgs_viewer.state import ViewerState

@@ -11,9 +11,9 @@ import torch
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")  # before pyvista loads VTK
 import pyvista as pv  # noqa: E402
 
-from avgs.checkpoint import save_checkpoint, untrained_checkpoint  # noqa: E402
+from avgs.io.checkpoint import save_checkpoint, untrained_checkpoint  # noqa: E402
 from avgs.data.frame import SceneFrame  # noqa: E402
-from avgs.inference import SceneRenderer  # noqa: E402
+from avgs.render.renderer import SceneRenderer  # noqa: E402
 from avgs_viewer import app, colors  # noqa: E402
 from avgs_viewer.drag import pixel_radius, ray_plane_z  # noqa: E402
 from avgs_viewer.export import annotated, check_picture_size, export_headless  # noqa: E402

@@ -104,7 +104,7 @@ def test_newest_request_wins_and_stale_maps_are_dropped(renderer):
 def test_listener_inset_shows_g_from_the_listener(renderer):
     import pyvista as pv
 
-    from avgs.listener_view import ListenerView
+    from avgs.render.listener_view import ListenerView
 
     r = renderer
     state = ViewerState(r.bounds, r.source, listener=(2.0, 2.0, 1.6), yaw=0.0)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from avgs.config import SynthesisConfig
-from avgs.inference import SceneRenderer
+from avgs.render.renderer import SceneRenderer
 from avgs_viewer.audio import StreamEngine
 from avgs_viewer.refine import SEAM_SECONDS, periods_before, refines, render_loop
 from avgs_viewer.state import ViewerState

@@ -15,10 +15,10 @@ import torch
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")  # before pyvista loads VTK
 import pyvista as pv  # noqa: E402
 
-from avgs.checkpoint import save_checkpoint, untrained_checkpoint  # noqa: E402
+from avgs.io.checkpoint import save_checkpoint, untrained_checkpoint  # noqa: E402
 from avgs.data.frame import SceneFrame  # noqa: E402
 from avgs.gaussians.sh import SH_C0  # noqa: E402
-from avgs.inference import SceneRenderer  # noqa: E402
+from avgs.render.renderer import SceneRenderer  # noqa: E402
 from avgs_viewer import app, colors  # noqa: E402
 from avgs_viewer.bench import orbit_fps  # noqa: E402
 from avgs_viewer.drag import DragController  # noqa: E402

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from avgs.metrics import rt60, schroeder_db
+from avgs.evaluation.metrics import rt60, schroeder_db
 from avgs_viewer.audio import ONCE_PEAK, StreamEngine
 from avgs_viewer.drag import DragController
 from avgs_viewer.response import DECAY_FLOOR_DB, ResponseSummary, column_edges, min_max_columns

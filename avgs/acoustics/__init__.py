@@ -3,5 +3,5 @@ network F, the binauralizer B, and :class:`~avgs.acoustics.model.AVGSModel` comp
 
 Everything here computes in the scene's *normalised* frame with yaw and direction in
 radians; world coordinates and degrees are converted at the public edges
-(:mod:`avgs.inference`, the CLI).
+(:mod:`avgs.render.renderer`, the CLI).
 """

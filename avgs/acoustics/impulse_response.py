@@ -122,7 +122,7 @@ class TailShaper:
         k = torch.arange(self.frames, dtype=torch.float64)  # [K]
         w = self.decay.clamp(0.0, 1.0)[:, None]  # [F, 1]
         envelope = torch.where(k > 0, w ** (0.5 * k), torch.zeros(()))  # [F, K], nothing at k = 0 (the direct part)
-        window_power = float(dsp._window(stft.win_length, "cpu", torch.float64).square().sum())
+        window_power = float(dsp.window(stft.win_length, "cpu", torch.float64).square().sum())
         # E|N(f, k)|^2 = sum(w^2), so |T(f, k)|^2 = r^2 w^k sum(w^2) / hop in expectation: energy r^2 w / (1 - w) per bin.
         noise = _noise_spectrogram(self.frames, stft)  # [2, F, K]
         # One draw of noise puts more energy in some bins than others (each bin's energy is

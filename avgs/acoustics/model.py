@@ -20,7 +20,7 @@ from avgs.acoustics.field import AcousticField
 from avgs.acoustics.points import AudioPoints
 from avgs.acoustics.synthesis import Masks, ear_magnitudes
 from avgs.acoustics.vicinity import nearest_indices, vicinity_size
-from avgs.config import STFT, AcousticConfig, STFTConfig
+from avgs.config import STFT, AcousticConfig, STFTConfig, TrainConfig
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,23 @@ class AVGSModel(nn.Module):
         self.binauralizer = Binauralizer(
             cfg, 2 * cfg.context_dim if cfg.use_context else None, stft.n_freq, stft.hop_length / stft.sample_rate
         )
+
+    # -- what the task registry asks of a task's model (avgs.tasks) ------------------------
+
+    @classmethod
+    def build(cls, points: AudioPoints, cfg: TrainConfig, stft: STFTConfig = STFT, vicinity_k: int | None = None):
+        """This task's model for the training configuration ``cfg``."""
+        return cls(points, cfg.acoustic, stft, vicinity_k=vicinity_k)
+
+    @staticmethod
+    def build_binauralizer(cfg: TrainConfig, stft: STFTConfig, context_dim: int | None) -> nn.Module:
+        """This task's B alone (the checkpoint's validation builds it on the ``meta`` device)."""
+        return Binauralizer(cfg.acoustic, context_dim, stft.n_freq, stft.hop_length / stft.sample_rate)
+
+    @staticmethod
+    def config_problem(cfg: TrainConfig, stft: STFTConfig) -> str | None:
+        """What in ``cfg`` this task cannot run with, or None."""
+        return None
 
     # -- vicinity and context ------------------------------------------------------------
 

@@ -94,7 +94,7 @@ class AudioPoints(nn.Module):
 
     Point management replaces the two parameters wholesale (:meth:`set_points`); an
     optimizer holding them must be updated at the same time (see
-    :mod:`avgs.point_management`).
+    :mod:`avgs.train.point_management`).
     """
 
     def __init__(self, X: torch.Tensor, alpha: torch.Tensor):

@@ -36,7 +36,7 @@ from collections import OrderedDict
 import torch
 from torch import nn
 
-from avgs.kernels import decayed_power
+from avgs.dsp.kernels import decayed_power
 
 LN_1E6 = math.log(1e6)
 "RT60 is the time for the power to fall by 60 dB, a factor of 1e6."
@@ -130,7 +130,7 @@ def _cached_kernel_spectrum(decay: torch.Tensor, taps: int, size: int) -> torch.
 
 def tail_power_recursive(mono_mag: torch.Tensor, decay: torch.Tensor, state: torch.Tensor | None = None):
     """The same sum by the recursion ``P(t) = w (P(t-1) + |S(t-1)|^2)``, frame by frame
-    (:func:`avgs.kernels.decayed_power`: one compiled loop on the CPU).
+    (:func:`avgs.dsp.kernels.decayed_power`: one compiled loop on the CPU).
 
     mono_mag: [..., F, N_t]; decay [F]; ``state`` = ``P(t0) + |S(t0)|^2`` of the frame before
     this block ([..., F], zeros at the start). Returns (P [..., F, N_t], the next state).

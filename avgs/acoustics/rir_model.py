@@ -9,18 +9,16 @@ the vicinity search and the caches are :class:`~avgs.acoustics.model.AVGSModel`'
 From log magnitudes to sound (:func:`response_waveform`): the predicted STFT magnitudes
 with a fixed-seed noise phase (independent per ear; a response's phase after the direct
 sound is all but random), refined by a few iterations of fast Griffin-Lim
-(:func:`avgs.phase_retrieval.griffin_lim`) so that the waveform's own STFT matches the magnitudes
+(:func:`avgs.dsp.phase_retrieval.griffin_lim`) so that the waveform's own STFT matches the magnitudes
 better. ``RIRConfig.phase`` picks one; the training log holds the T60 / C50 / EDT of each on
 the validation and held-out responses. Measured on rect_small (500 iterations, 60 val
 responses): noise phase T60 30.2 %, C50 0.96 dB, EDT 0.037 s; 4 Griffin-Lim iterations 29.6 %,
 0.96 dB, 0.036 s; 16 iterations 29.6 %, 1.02 dB, 0.037 s. The same within noise, and the
 iterations cost 11 ms of a 25 ms render (one core): the default is the noise phase.
 
-:meth:`RIRModel.masks` gives code written for B's masks (the propagation map, the viewer's
-colour modes) the response's long-term ear gains: ``|H_ear(f)|`` from the energy of each
-bin over the frames (the STFT's Parseval relation), as mixture ``(|H_l| + |H_r|) / 2`` and
-difference ``(|H_l| - |H_r|) / (|H_l| + |H_r|)``, so that ``ear_gains`` gives ``|H_l|, |H_r|``.
-"""
+A pose's long-term ear gains ``|H_ear(f)|`` come from the energy of each bin over the
+frames (the STFT's Parseval relation, :func:`ear_transfer`): what the propagation map and the
+renderer's results report for this task."""
 
 from __future__ import annotations
 
@@ -35,9 +33,8 @@ from avgs.acoustics.field import AcousticField
 from avgs.acoustics.model import AVGSModel, ModelCache
 from avgs.acoustics.points import AudioPoints
 from avgs.acoustics.rir_binauralizer import RIRBinauralizer
-from avgs.acoustics.synthesis import Masks
-from avgs.config import STFT, AcousticConfig, RIRConfig, STFTConfig
-from avgs.phase_retrieval import FrameGrid, frame_grid, griffin_lim
+from avgs.config import STFT, AcousticConfig, RIRConfig, STFTConfig, TrainConfig
+from avgs.dsp.phase_retrieval import FrameGrid, frame_grid, griffin_lim
 from avgs.data.frame import signed_direction
 
 PHASE_SEED = 20240515
@@ -69,6 +66,23 @@ class RIRModel(AVGSModel):
         )
         self.binauralizer = RIRBinauralizer(rir, 2 * cfg.context_dim if cfg.use_context else None, stft.n_freq, rir.frames,
                                             stft.hop_length / stft.sample_rate)
+
+    @classmethod
+    def build(cls, points: AudioPoints, cfg: TrainConfig, stft: STFTConfig = STFT, vicinity_k: int | None = None):
+        """This task's model for the training configuration ``cfg`` (its ``rir`` section sized to the responses)."""
+        return cls(points, cfg.acoustic, cfg.rir, stft, vicinity_k=vicinity_k)
+
+    @staticmethod
+    def build_binauralizer(cfg: TrainConfig, stft: STFTConfig, context_dim: int | None) -> nn.Module:
+        return RIRBinauralizer(cfg.rir, context_dim, stft.n_freq, cfg.rir.frames, stft.hop_length / stft.sample_rate)
+
+    @staticmethod
+    def config_problem(cfg: TrainConfig, stft: STFTConfig) -> str | None:
+        r = cfg.rir
+        if not (r.length >= 1 and r.frames == 1 + r.length // stft.hop_length):
+            return ("task rir needs rir.length >= 1 samples and rir.frames = 1 + length // hop (the responses' STFT "
+                    f"frames), got length {r.length!r}, frames {r.frames!r}")
+        return None
 
     @torch.no_grad()
     def precompute(self) -> ModelCache:
@@ -121,17 +135,6 @@ class RIRModel(AVGSModel):
         threshold makes that region silent and changes louder bins by less than the floor."""
         return silenced_magnitudes(log_mag, self.binauralizer.log_floor)
 
-    def masks(self, listener: torch.Tensor, theta: torch.Tensor, source: torch.Tensor,
-              cached_source=None, cache: ModelCache | None = None) -> Masks:
-        """The response's long-term ear gains as :class:`Masks` (see the module docstring), for code
-        written for B: listener [B, 3], theta [B] radians (as B takes it), source [3]. The yaw is
-        recovered from theta and the direction to the source."""
-        d = source[..., :2] - listener[..., :2]  # [B, 2]
-        yaw = torch.atan2(d[..., 1], d[..., 0]) - theta  # theta = direction - yaw
-        log_mag, lis_idx, src_idx = self.log_magnitudes(listener, yaw, source, cache, cached_source)
-        mixture, difference = masks_of_gains(ear_transfer(self.magnitudes(log_mag), self.stft))  # [B, F] each
-        return Masks(mixture, difference, listener_vicinity=lis_idx, source_vicinity=src_idx[0])
-
     def forward(self, listener, yaw, source):
         """Training: log magnitudes [B, 2, F, N] and the vicinities (:meth:`log_magnitudes`)."""
         return self.log_magnitudes(listener, yaw, source)
@@ -146,15 +149,8 @@ def silenced_magnitudes(log_mag: torch.Tensor, log_floor) -> torch.Tensor:
 def ear_transfer(mag: torch.Tensor, stft: STFTConfig = STFT) -> torch.Tensor:
     """``|H(f)|`` [..., F] of a response from its STFT magnitudes [..., F, N]: ``sqrt(sum_t |S|^2 hop / sum(w^2))``
     (Parseval: an impulse response's STFT frames carry ``|H(f)|^2 sum(w^2) / hop`` per bin in all)."""
-    window_power = float(dsp._window(stft.win_length, "cpu", torch.float64).square().sum())
+    window_power = float(dsp.window(stft.win_length, "cpu", torch.float64).square().sum())
     return torch.sqrt(mag.square().sum(-1) * (stft.hop_length / window_power))
-
-
-def masks_of_gains(gains: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(mixture, difference) [..., F] whose ear gains ``m (1 +- d)`` are ``gains [..., 2, F]`` (left, right)."""
-    total = gains[..., 0, :] + gains[..., 1, :]
-    difference = torch.where(total > 0, (gains[..., 0, :] - gains[..., 1, :]) / total.clamp_min(1e-30), torch.zeros_like(total))
-    return 0.5 * total, difference
 
 
 @functools.lru_cache(maxsize=8)

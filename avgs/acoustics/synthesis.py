@@ -1,7 +1,7 @@
 """From masks to sound: the one place where B's masks become ear spectrograms and waveforms.
 
 Training (:meth:`AVGSModel.forward <avgs.acoustics.model.AVGSModel.forward>`), rendering
-(:class:`avgs.inference.SceneRenderer`), streaming (:mod:`avgs.streaming`), evaluation and
+(:class:`avgs.render.renderer.SceneRenderer`), streaming (:mod:`avgs.render.streaming`), evaluation and
 the benchmarks all go through these functions. Shapes: B poses, F = 257 frequency bins,
 N_t STFT frames; channel 0 of an ear axis is the left ear.
 
@@ -27,8 +27,8 @@ import torch
 
 from avgs.acoustics.reverb_tail import fill_phase, tail_power
 from avgs.config import STFT, STFTConfig, SynthesisConfig
-from avgs.kernels import decayed_power, project_magnitudes
-from avgs.phase_retrieval import frame_grid, griffin_lim, retrieve_phase
+from avgs.dsp.kernels import decayed_power, project_magnitudes
+from avgs.dsp.phase_retrieval import frame_grid, griffin_lim, retrieve_phase
 
 
 @dataclass(frozen=True)
@@ -258,13 +258,13 @@ def mid_phase_waveform(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The default synthesis: (waveform [B, 2, length], ear magnitudes [B, 2, F, N_t]).
 
-    One phase for both ears: fast Griffin-Lim (``synthesis.iterations``; :mod:`avgs.phase_retrieval`)
+    One phase for both ears: fast Griffin-Lim (``synthesis.iterations``; :mod:`avgs.dsp.phase_retrieval`)
     retrieves a phase for the mid magnitudes ``s_m`` from the source's, and each ear's
     magnitudes take it. The ears' magnitudes differ from ``s_m`` by slowly varying gains
     per bin, so the shared phase is nearly as consistent for them as for ``s_m``: one
     retrieval instead of two. Mask model only (no conv head). ``first_frame``: the absolute
     index of frame 0 (:func:`source_phase`). ``source``: :func:`source_parts` of ``mono_stft``
-    when already made (``mono_stft`` is then not read). :class:`avgs.mid_phase_stream.MidPhaseStream`
+    when already made (``mono_stft`` is then not read). :class:`avgs.render.mid_phase_stream.MidPhaseStream`
     does the same block by block, from the same pieces (:func:`source_parts`, :func:`pose_parts`,
     :func:`shared_phase_waveform`).
     """

@@ -99,8 +99,8 @@ def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
 
 def with_precision(renderer, dtype: torch.dtype):
     """The same scene with its networks in ``dtype`` (for measurement)."""
-    from avgs.checkpoint import load_checkpoint
-    from avgs.inference import SceneRenderer
+    from avgs.io.checkpoint import load_checkpoint
+    from avgs.render.renderer import SceneRenderer
 
     return SceneRenderer(load_checkpoint(renderer.path), device=renderer.device, path=renderer.path,
                          synthesis=renderer.synthesis, dtype=dtype)

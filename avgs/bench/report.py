@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from avgs.atomic import atomic_path, write_text
+from avgs.io.atomic import atomic_path, write_text
 
 PAPER_ANCHORS_S = {"AV-NeRF (paper)": 1.4, "AV-GS (paper)": 0.08}
 "Inference time per pose quoted by the AV-GS paper (its GPU; ours is measured here)."

@@ -5,14 +5,14 @@ Every point is (latency per pose, MAG, ENV) on a scene's val clips:
 - the three baselines (oracle energy for two of them), timed per clip;
 - AV-GS at vicinity 5/10/15/20/25 % (one model trained per setting);
 - AV-GS at point budgets: the 15 % model pruned exactly to the walkable area
-  (:mod:`avgs.prune`), then random subsets of it (k at 15 % of the subset);
+  (:mod:`avgs.render.prune`), then random subsets of it (k at 15 % of the subset);
 - AV-GS with each synthesis of :data:`avgs.bench.latency.SYNTHESES` (the 15 % model): the pose's filter, and the
   predicted magnitudes with the filter's or the source's phase and 0, 2 or 8 phase iterations;
 - AV-GS in reduced precision (bfloat16 on the CPU, float16 on CUDA) where it runs;
 - the simulator that made the scene (pyroomacoustics, image-source order 0..10, with
   and without ray tracing), timed per pose (RIR + convolution of the clip).
 
-AV-GS and the baselines are scored by :func:`avgs.evaluate.score_scene` (MAG/ENV of the
+AV-GS and the baselines are scored by :func:`avgs.evaluation.binaural.score_scene` (MAG/ENV of the
 val clips as they are). The simulator's prediction is the scene's whole source signal
 convolved with the pose's binaural RIR, cut to the clip's window (so reverberation
 from before the window is present, as in the ground truth), then **gain-matched per
@@ -75,7 +75,7 @@ def bench_config(iterations: int, vicinity: float, n_points: int, device: str = 
 
 def train_model(scene_dir, out: Path, iterations: int, vicinity: float, n_points: int, device="cpu", seed=0) -> dict:
     """Train (or reuse, when ``out`` was trained with the same settings) one AV-GS model."""
-    from avgs.checkpoint import load_checkpoint
+    from avgs.io.checkpoint import load_checkpoint
     from avgs.data.rwavs import RWAVSScene
     from avgs.train.pipeline import train_scene
 
@@ -100,7 +100,7 @@ def train_model(scene_dir, out: Path, iterations: int, vicinity: float, n_points
     ck = load_checkpoint(out)
     ck["bench_key"] = key
     ck.pop("train_state", None)
-    from avgs.checkpoint import save_checkpoint
+    from avgs.io.checkpoint import save_checkpoint
 
     save_checkpoint(ck, out)
     return {"reused": False, "train_seconds": seconds, **final}
@@ -177,7 +177,7 @@ def method_latency(method, scene, repeats: int) -> Timing:
 
 
 def score(method, scene) -> dict:
-    from avgs.evaluate import score_scene
+    from avgs.evaluation.binaural import score_scene
 
     return score_scene(method, scene, progress=False)
 
@@ -200,7 +200,7 @@ def simulator_points(scene_dir, scene, orders=SIM_ORDERS, ray_tracing=(False, Tr
     """One row per (order, ray tracing): per-pose seconds and gain-matched MAG/ENV on val clips."""
     from scipy.signal import fftconvolve
 
-    from avgs import metrics
+    from avgs.evaluation import metrics
     from avgs.data.rwavs import SOURCE_FILE, clip_window, read_wav
     from avgs.data.synth import simulate as sim
 
@@ -256,11 +256,11 @@ def bench_scene(scene_dir, work: Path, *, iterations: int, n_points: int, repeat
                 budgets=BUDGET_FRACTIONS, orders=SIM_ORDERS, sim_poses: int = 4, cuda: bool = False,
                 progress=None) -> dict:
     """All speed-against-error rows of one scene, plus the point-budget curve."""
-    from avgs.prune import checkpoint_bytes, prune_checkpoint, scene_listener_box, subsample_checkpoint
-    from avgs.baselines import BASELINES
-    from avgs.checkpoint import load_checkpoint, save_checkpoint
+    from avgs.render.prune import checkpoint_bytes, prune_checkpoint, scene_listener_box, subsample_checkpoint
+    from avgs.evaluation.baselines import BASELINES
+    from avgs.io.checkpoint import load_checkpoint, save_checkpoint
     from avgs.data.rwavs import RWAVSScene
-    from avgs.inference import SceneRenderer
+    from avgs.render.renderer import SceneRenderer
 
     say = progress or (lambda msg: None)
     scene = RWAVSScene(scene_dir)

@@ -83,7 +83,7 @@ def generate_scenes(work: Path, presets: list[str], poses: int, seed: int, quick
 
 def demo_renderer(args, scenes_result: dict | None, work: Path, settings: dict, say):
     """(SceneRenderer, description) for the latency section."""
-    from avgs.inference import SceneRenderer
+    from avgs.render.renderer import SceneRenderer
 
     if Path(args.ckpt).is_file():
         return SceneRenderer.load(args.ckpt), f"`{args.ckpt}`"
@@ -94,11 +94,11 @@ def demo_renderer(args, scenes_result: dict | None, work: Path, settings: dict, 
             return SceneRenderer.load(path), f"{args.ckpt} absent; the bench's 15 % model of {sc}"
     import numpy as np
 
-    from avgs.checkpoint import untrained_checkpoint
+    from avgs.io.checkpoint import untrained_checkpoint
 
     n = settings["points"]
     say(f"{args.ckpt} absent and no scene: latency on an untrained {n}-point model (same cost as trained)")
-    from avgs.checkpoint import save_checkpoint
+    from avgs.io.checkpoint import save_checkpoint
 
     pts = np.random.default_rng(0).uniform([0, 0, 0], [6, 4, 3], size=(n, 3))
     path = save_checkpoint(untrained_checkpoint(pts, [4.5, 2.5, 1.2]), work / "demo_untrained.ckpt")
@@ -175,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
     if "latency" not in args.skip:
         results["latency"] = {"cpu": latency_mod.measure(renderer, repeats=settings["repeats"], long_seconds=settings["long_seconds"], progress=say)}
         if cuda:
-            from avgs.inference import SceneRenderer
+            from avgs.render.renderer import SceneRenderer
 
             path = renderer.path
             if path is not None:

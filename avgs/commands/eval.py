@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import argparse
 
-from avgs.baselines import BASELINES
+from avgs.evaluation.baselines import BASELINES
 from avgs.commands.render import add_synthesis_flags
 
 RIR_DEFAULT_METHODS = ("nearest", "linear", "opus-nearest", "opus-linear", "aac-nearest", "aac-linear")
-"The RIR task's baselines (avgs.rir_baselines.RIR_BASELINES), scored when no method is named."
+"The RIR task's baselines (avgs.evaluation.interpolation.RIR_BASELINES), scored when no method is named."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,8 +65,8 @@ def _model_paths(specs: list[str], prefixes) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     if args.task == "rir":
         return run_rir(args)
-    from avgs import evaluate
-    from avgs.atomic import check_output, write_json
+    from avgs.evaluation import binaural as evaluate
+    from avgs.io.atomic import check_output, write_json
     from avgs.commands.render import synthesis_of
 
     if len(args.data_root) != 1:
@@ -90,8 +90,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_rir(args: argparse.Namespace) -> int:
-    from avgs import evaluate_rir
-    from avgs.atomic import check_output, write_json
+    from avgs.evaluation import impulse_response as evaluate_rir
+    from avgs.io.atomic import check_output, write_json
 
     specs = _specs(args, RIR_DEFAULT_METHODS)
     for spec in specs:  # a bad name fails before any scene is read

@@ -14,7 +14,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def summary(path) -> dict:
     """Plain-value description of the checkpoint at ``path`` (world coordinates)."""
-    from avgs.checkpoint import config_of, load_checkpoint, stft_of
+    from avgs.io.checkpoint import config_of, load_checkpoint, stft_of
     from avgs.data.frame import SceneFrame
 
     ckpt = load_checkpoint(path)

@@ -3,7 +3,7 @@
 The region where listeners (and the source) may go is, in order: ``--region`` (world
 box), the listener poses of ``--scene`` widened by ``--margin``, or the checkpoint's
 scene bounds (the most conservative). Inside it the pruned model's masks equal the
-original's (:mod:`avgs.prune`). G is dropped unless ``--keep-gaussians``.
+original's (:mod:`avgs.render.prune`). G is dropped unless ``--keep-gaussians``.
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from avgs.atomic import check_output
-    from avgs.checkpoint import load_checkpoint, save_checkpoint
-    from avgs.prune import prune_checkpoint, scene_listener_box
+    from avgs.io.atomic import check_output
+    from avgs.io.checkpoint import load_checkpoint, save_checkpoint
+    from avgs.render.prune import prune_checkpoint, scene_listener_box
 
     check_output(args.out, inputs=[args.checkpoint, args.scene], what="--out")
     ckpt = load_checkpoint(args.checkpoint)

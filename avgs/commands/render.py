@@ -47,9 +47,9 @@ def synthesis_of(args: argparse.Namespace) -> SynthesisConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from avgs.atomic import check_output, write_wav
-    from avgs.audio_input import read_mono
-    from avgs.inference import SceneRenderer
+    from avgs.io.atomic import check_output, write_wav
+    from avgs.io.audio_input import read_mono
+    from avgs.render.renderer import SceneRenderer
 
     check_output(args.output, inputs=[args.checkpoint, args.input], what="--output")
     renderer = SceneRenderer.load(args.checkpoint, device=args.device, synthesis=synthesis_of(args))

@@ -113,7 +113,7 @@ def check_options(runs) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from avgs.evaluate import find_scenes
+    from avgs.evaluation.binaural import find_scenes
     from avgs.sweep import results
     from avgs.sweep.driver import describe, plan, sweep
     from avgs.sweep.execute import train_argv

@@ -63,8 +63,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 
 def check_training_outputs(args: argparse.Namespace) -> None:
-    """Refuse, before any work, outputs that would replace an input or a non-file (avgs.atomic.check_output)."""
-    from avgs.atomic import check_output
+    """Refuse, before any work, outputs that would replace an input or a non-file (avgs.io.atomic.check_output)."""
+    from avgs.io.atomic import check_output
     from avgs.train.logging import log_paths
     from avgs.train.stage1 import stage1_path
 

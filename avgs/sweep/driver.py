@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from avgs.atomic import write_json, write_text
+from avgs.io.atomic import write_json, write_text
 from avgs.sweep import results
 from avgs.sweep.spec import Run, SweepSpec
 from avgs.sweep.state import RunState, check_folder, run_state

@@ -2,7 +2,7 @@
 spread over seeds; and the table of which runs ran, which failed and why.
 
 Each run's score is ``avgs eval``'s report of its checkpoint (``eval-<split>.json``). For a
-setting and a seed, environments and overall follow RWAVS (:func:`avgs.evaluate.aggregate`:
+setting and a seed, environments and overall follow RWAVS (:func:`avgs.evaluation.binaural.aggregate`:
 an environment is the mean of its scenes, overall the mean of the environments), counted
 only for a seed that has every scene of the sweep, so that no seed's overall leaves a scene
 out. Then each row is the mean over seeds, the sample standard deviation (``std``, null with
@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from avgs.evaluate import aggregate
+from avgs.evaluation.binaural import aggregate
 from avgs.sweep.spec import Run
 from avgs.sweep.state import scores_of
 

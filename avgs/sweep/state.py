@@ -21,7 +21,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from avgs.atomic import write_json
+from avgs.io.atomic import write_json
 from avgs.sweep.spec import Run
 
 STATUS = "status.json"

@@ -7,7 +7,7 @@ import json
 import math
 from pathlib import Path
 
-from avgs.atomic import atomic_path, write_text
+from avgs.io.atomic import atomic_path, write_text
 
 
 def log_paths(checkpoint: str | Path) -> tuple[Path, Path]:

@@ -26,7 +26,7 @@ import torch
 
 from avgs.acoustics.model import AVGSModel
 from avgs.acoustics.points import AudioPoints
-from avgs.checkpoint import build_checkpoint, config_of, load_checkpoint, outline_from_metadata, save_checkpoint
+from avgs.io.checkpoint import build_checkpoint, config_of, load_checkpoint, outline_from_metadata, save_checkpoint
 from avgs.config import TrainConfig
 from avgs.train.logging import JsonLinesLog, log_paths, plot_curves
 from avgs.train.stage1 import (

@@ -17,7 +17,7 @@ with stage 2's optimiser groups, schedule, audio-aware point management and exac
 (:class:`RIRTrainer` is a :class:`~avgs.train.stage2.Stage2Trainer` with another batch and
 loss). Every ``eval_every`` iterations the log-magnitude RMSE on val (``val_logmag``) is
 logged beside that of the training responses' mean (``val_logmag_mean``: predicting the mean
-response); at the end T60 / C50 / EDT errors (:mod:`avgs.metrics`) of the waveforms on val
+response); at the end T60 / C50 / EDT errors (:mod:`avgs.evaluation.metrics`) of the waveforms on val
 and heldout, for each phase reconstruction (:func:`~avgs.acoustics.rir_model.response_waveform`).
 """
 
@@ -35,7 +35,7 @@ import torch
 from avgs import dsp
 from avgs.acoustics.points import AudioPoints
 from avgs.acoustics.rir_model import RIRModel, response_waveform, silenced_magnitudes
-from avgs.checkpoint import build_checkpoint, outline_from_metadata, save_checkpoint
+from avgs.io.checkpoint import build_checkpoint, outline_from_metadata, save_checkpoint
 from avgs.config import TrainConfig
 from avgs.train.logging import JsonLinesLog, log_paths, plot_curves
 from avgs.train.stage2 import Stage2Trainer
@@ -201,7 +201,7 @@ class RIRTrainer(Stage2Trainer):
     def room_metrics(self, data: RIRData, prefix: str, limit: int, phases=PHASES) -> dict:
         """T60 % / C50 dB / EDT s errors of the predicted waveforms on at most ``limit`` responses of
         ``data`` (evenly spaced), for each phase reconstruction; ``{prefix}_{metric}`` for the configured one."""
-        from avgs.metrics import c50_error, edt_error, t60_error
+        from avgs.evaluation.metrics import c50_error, edt_error, t60_error
 
         if len(data) == 0 or limit < 1:
             return {}

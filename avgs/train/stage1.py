@@ -29,7 +29,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from avgs.atomic import torch_save
+from avgs.io.atomic import torch_save
 from avgs.acoustics.points import AudioPoints, alpha_from_colors, alpha_from_gaussians, parse_alpha_spec
 from avgs.config import TrainConfig
 

@@ -15,7 +15,7 @@ import torch
 from avgs.acoustics.model import AVGSModel
 from avgs.acoustics.synthesis import binaural_waveform, mid_phase_waveform
 from avgs.config import TrainConfig
-from avgs.point_management import AudioPointManager
+from avgs.train.point_management import AudioPointManager
 from avgs.train.losses import magnitude_loss, total_loss, volume_loss
 
 
@@ -129,7 +129,7 @@ class Stage2Trainer:
     @torch.no_grad()
     def predict(self, data, chunk: int = 16) -> torch.Tensor:
         """Binaural waveforms [C, 2, T] for every clip of ``data`` (a ClipDataset), synthesised as
-        :meth:`avgs.inference.SceneRenderer.render` does by default, so ``val_mag`` is ``avgs eval``'s MAG."""
+        :meth:`avgs.render.renderer.SceneRenderer.render` does by default, so ``val_mag`` is ``avgs eval``'s MAG."""
         self.model.eval()
         source = data.source.to(self.device)
         cached = self.model.source_context(source)
@@ -147,8 +147,8 @@ class Stage2Trainer:
         return torch.cat(out)
 
     def evaluate(self, data) -> dict:
-        """Validation MAG and ENV (DESIGN.md §5, :mod:`avgs.metrics`), mean over clips."""
-        from avgs.metrics import env, mag
+        """Validation MAG and ENV (DESIGN.md §5, :mod:`avgs.evaluation.metrics`), mean over clips."""
+        from avgs.evaluation.metrics import env, mag
 
         pred = self.predict(data).numpy()  # [C, 2, T]
         gt = data.binaural.numpy()  # [C, 2, T]

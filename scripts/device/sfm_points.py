@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from avgs.atomic import atomic_path
+from avgs.io.atomic import atomic_path
 from avgs.gaussians.sfm import sfm_points
 
 scene, out = Path(sys.argv[1]), Path(sys.argv[2])

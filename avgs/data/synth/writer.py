@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from avgs.atomic import write_text
+from avgs.io.atomic import write_text
 from avgs.data.synth import GENERATOR_VERSION
 from avgs.data.synth.materials import material_record
 from avgs.data.synth.poses import Pose, sample_poses

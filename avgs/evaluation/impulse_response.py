@@ -2,18 +2,18 @@
 
 A *method* of the RIR task is a callable ``(train: RIRSet, query: RIRSet) -> [N, 2, L]``
 (numpy or torch): the responses it predicts for the query's (source, receiver, yaw), given
-the scene's training responses. The baselines of :mod:`avgs.rir_baselines` interpolate
+the scene's training responses. The baselines of :mod:`avgs.evaluation.interpolation` interpolate
 the training responses; :class:`ResponseCheckpointMethod` wraps a checkpoint trained on
 the RIR task (``SceneRenderer.predict_responses``, which ignores ``train``). A method may
 define ``applies_to(scene) -> bool`` (a checkpoint applies to the scene it was trained on)
 and ``for_scene(scene)`` (a folder of checkpoints: the one for that scene).
 
-Per response, each metric is that of :mod:`avgs.metrics` (DESIGN.md section 5), averaged
+Per response, each metric is that of :mod:`avgs.evaluation.metrics` (DESIGN.md section 5), averaged
 over the two ears: ``t60_pct`` (``|T60_pred - T60_gt| / T60_gt x 100``, a failed
 measurement counting 100 %), ``c50_db`` (``|C50_pred - C50_gt|``), ``edt_s``
 (``|EDT_pred - EDT_gt|``). A scene's score is the mean over its responses of the split;
 an environment's the mean over its scenes; overall the mean of the environment means,
-as the binaural task (:func:`avgs.evaluate.aggregate`).
+as the binaural task (:func:`avgs.evaluation.binaural.aggregate`).
 
 The report has the binaural task's shape, plus ``"task": "rir"``:
 ``{"task", "split", "environments": {scene: env}, "clips": {scene: responses scored},
@@ -34,9 +34,9 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from avgs import metrics
-from avgs.evaluate import CKPT_PREFIX, CheckpointMethod, CheckpointSetMethod, aggregate, format_report
-from avgs.rir_baselines import RIR_BASELINES, CodecMethod
+from avgs.evaluation import metrics
+from avgs.evaluation.binaural import CKPT_PREFIX, CheckpointMethod, CheckpointSetMethod, aggregate, format_report
+from avgs.evaluation.interpolation import RIR_BASELINES, CodecMethod
 
 if TYPE_CHECKING:
     from avgs.data.rir import RIRScene, RIRSet
@@ -234,7 +234,7 @@ def evaluate(methods: dict, scene_dirs: Iterable[str | Path], split: str = "val"
 
 
 def format_rir_report(report: dict) -> str:
-    """The table of :func:`avgs.evaluate.format_report` with T60 %, C50 dB and EDT s; one per split."""
+    """The table of :func:`avgs.evaluation.binaural.format_report` with T60 %, C50 dB and EDT s; one per split."""
     if "splits" in report:
         return "\n\n".join(format_rir_report(r) for r in report["splits"].values())
     return format_report(report, columns=COLUMNS, unit="responses")

@@ -1,8 +1,8 @@
 """Reference methods of the RWAVS benchmark (AV-NeRF, AV-GS Table 1).
 
-Each is a *method* in the sense of :mod:`avgs.evaluate`: a callable
+Each is a *method* in the sense of :mod:`avgs.evaluation.binaural`: a callable
 ``(clip, scene) -> binaural [2, T]`` float32 (Oracle-Mask: an
-:class:`avgs.methods.Prediction`, the waveform and the masked magnitudes behind it). Mono-Energy and Stereo-Energy are oracle
+:class:`avgs.evaluation.methods.Prediction`, the waveform and the masked magnitudes behind it). Mono-Energy and Stereo-Energy are oracle
 baselines: they read the ground-truth energy of the clip they predict.
 
 - Mono-Mono: the source copied to both ears.
@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from avgs.methods import Prediction
+from avgs.evaluation.methods import Prediction
 
 if TYPE_CHECKING:
     from avgs.data.rwavs import AudioClip, RWAVSScene
@@ -57,7 +57,7 @@ def stereo_energy(clip: "AudioClip", scene: "RWAVSScene | None" = None) -> np.nd
 
 def oracle_mask(clip: "AudioClip", scene: "RWAVSScene | None" = None):
     """The best time-invariant mask per ear for this clip's own target, as an
-    :class:`avgs.methods.Prediction`: the waveform ``[2, T]`` and the masked magnitudes ``[2, F, N]``."""
+    :class:`avgs.evaluation.methods.Prediction`: the waveform ``[2, T]`` and the masked magnitudes ``[2, F, N]``."""
     import torch
 
     from avgs import dsp

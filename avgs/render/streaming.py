@@ -1,6 +1,6 @@
 """The default synthesis block by block, equal to one-shot rendering.
 
-:meth:`avgs.inference.SceneRenderer.render` by default (``SynthesisConfig()``: method
+:meth:`avgs.render.renderer.SceneRenderer.render` by default (``SynthesisConfig()``: method
 ``spectrogram``, phase ``filter``, no phase iterations) makes, per STFT frame, the
 predicted ear magnitudes with the phase of the input through the pose's filter. Every
 step is causal or frame-local, so :class:`BinauralStream` computes the same thing in blocks
@@ -54,7 +54,7 @@ def one_pose(masks: Masks, stft: STFTConfig, dtype: torch.dtype, like: Masks | N
 class BinauralStream:
     """Binauralise a mono stream block by block with one pose: its :class:`Masks` ([1, F]) and its
     binaural impulse response ``[2, L]`` (:meth:`SceneRenderer.binaural_filter
-    <avgs.inference.SceneRenderer.binaural_filter>`)."""
+    <avgs.render.renderer.SceneRenderer.binaural_filter>`)."""
 
     def __init__(self, masks: Masks, impulse: np.ndarray, stft: STFTConfig = STFT, block: int = 128):
         if stft.win_length != stft.n_fft:

@@ -15,7 +15,7 @@ from avgs.config import STFT, STFTConfig
 
 
 @functools.lru_cache(maxsize=8)
-def _window(win_length: int, device: str, dtype: torch.dtype) -> torch.Tensor:
+def window(win_length: int, device: str, dtype: torch.dtype) -> torch.Tensor:
     # Made outside inference mode: a cached inference tensor could not be used under autograd later.
     with torch.inference_mode(False):
         return torch.hann_window(win_length, device=device, dtype=dtype)
@@ -41,7 +41,7 @@ def stft(x: torch.Tensor | np.ndarray, cfg: STFTConfig = STFT) -> torch.Tensor:
         n_fft=cfg.n_fft,
         hop_length=cfg.hop_length,
         win_length=cfg.win_length,
-        window=_window(cfg.win_length, str(x.device), x.dtype),
+        window=window(cfg.win_length, str(x.device), x.dtype),
         center=True,
         pad_mode=pad_mode,
         return_complex=True,
@@ -59,7 +59,7 @@ def istft(spec: torch.Tensor, length: int, cfg: STFTConfig = STFT) -> torch.Tens
         n_fft=cfg.n_fft,
         hop_length=cfg.hop_length,
         win_length=cfg.win_length,
-        window=_window(cfg.win_length, str(spec.device), real_dtype),
+        window=window(cfg.win_length, str(spec.device), real_dtype),
         center=True,
         length=length,
     )

@@ -13,7 +13,7 @@ two numbers per cell, both of the pose's ear filter (:mod:`avgs.acoustics.synthe
   with ``g = m_m (1 +- m_d)`` the direct gains and, with the reverberant tail, ``r`` its
   per-ear gains and ``w`` its power decay per frame: the tail of a stationary source
   settles at ``r^2 w / (1 - w)`` times the source's power (the geometric sum that
-  :class:`~avgs.inference.SceneRenderer` also bounds by its headroom). 0 dB: the filter
+  :class:`~avgs.render.renderer.SceneRenderer` also bounds by its headroom). 0 dB: the filter
   passes a white source at its own power.
 - **ILD** (dB): ``10 log10(sum_f P_left / sum_f P_right)``, positive when the left ear
   is louder (the source on the listener's left, :func:`avgs.data.frame.signed_direction`).
@@ -22,10 +22,10 @@ Two ways to compute a cell (``exact``):
 
 - **exact** (``exact=True``): cells are
   :meth:`AVGSModel.masks <avgs.acoustics.model.AVGSModel.masks>` of the very poses
-  :meth:`SceneRenderer.masks <avgs.inference.SceneRenderer.masks>` builds (the same world to
+  :meth:`SceneRenderer.masks <avgs.render.renderer.SceneRenderer.masks>` builds (the same world to
   normalised map and the same ``signed_direction`` in float64, cast to the model's dtype),
   with the same headroom limit (a pose whose loudest bin gains more than
-  :data:`~avgs.inference.HEADROOM_DB` is scaled down to it), so ``pose_levels`` of
+  :data:`~avgs.render.renderer.HEADROOM_DB` is scaled down to it), so ``pose_levels`` of
   ``renderer.masks(...)`` gives the cell's numbers to float rounding. On the demo (impulse
   responses) a cell is about 135 MFLOP: the RIR network's time MLP and head over all
   N = 158 frames and F = 257 bins (124 MFLOP), F over the listener's k = 1200 points (10);
@@ -74,151 +74,12 @@ import numpy as np
 import torch
 
 from avgs.data.frame import signed_direction
-from avgs.inference import HEADROOM_DB
-
-LEVEL_FLOOR_DB = -120.0
-"Level (and each ear's level in the ILD) of a filter that passes nothing: silence is a number, not -inf."
+from avgs.render.cells import (LEVEL_FLOOR_DB, PEAK_MARGIN, FastMap, bin_subset, ear_power, frame_interpolation,  # noqa: F401
+                               frame_nodes, listener_contexts, pose_levels, power_levels)
+from avgs.render.tasks import HEADROOM_DB
 
 KINDS = ("level", "ild")
 "What a map can show: ``level`` (dB) and ``ild`` (dB, left minus right)."
-
-
-# -- the two numbers of one pose ---------------------------------------------------------
-
-
-def ear_power(mixture, difference, reverb=None, decay=None) -> np.ndarray:
-    """Each ear's power gain per bin for a stationary white source: ``[..., 2, F]`` float64.
-
-    mixture, difference: ``[..., F]``; reverb: ``[..., 2, F]`` or None; decay: ``[F]`` (with
-    reverb). ``g_ear^2 + r_ear^2 w / (1 - w)``: the direct part and the tail's steady state.
-    """
-    m = np.asarray(mixture, dtype=np.float64)
-    d = np.asarray(difference, dtype=np.float64)
-    power = np.stack([m * (1.0 + d), m * (1.0 - d)], axis=-2) ** 2  # [..., 2, F]
-    if reverb is not None:
-        if decay is None:
-            raise ValueError("ear_power: reverberant gains need the tail's decay per frame")
-        w = np.minimum(np.asarray(decay, dtype=np.float64), 1.0 - 1e-9)  # [F], as the headroom limit
-        power = power + np.asarray(reverb, dtype=np.float64) ** 2 * (w / (1.0 - w))
-    return power
-
-
-def _db(x: np.ndarray) -> np.ndarray:
-    with np.errstate(divide="ignore"):
-        return np.maximum(10.0 * np.log10(x), LEVEL_FLOOR_DB)
-
-
-def power_levels(power: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``(level dB, ILD dB)``, each ``[...]``, of ear powers ``[..., 2, F]`` (:func:`ear_power`);
-    ``weights`` [F] (summing to 1): a weighted mean over the bins instead of the plain mean."""
-    per_ear = power.mean(axis=-1) if weights is None else power @ weights  # [..., 2]
-    level = _db(per_ear.mean(axis=-1))
-    ild = _db(per_ear[..., 0]) - _db(per_ear[..., 1])
-    return level, ild
-
-
-def pose_levels(masks, decay=None) -> tuple[float, float]:
-    """``(level dB, ILD dB)`` of one pose's masks: a :class:`~avgs.inference.RenderResult`
-    (``renderer.masks(...)``: mixture, difference [F], reverb [2, F] or None) and, with a
-    tail, its decay per frame [F] (``renderer.model.binauralizer.reverb.decay()``)."""
-    if masks.reverb is not None and decay is None:
-        raise ValueError("pose_levels: masks with a reverberant tail need its decay per frame")
-    dec = None if masks.reverb is None else _numpy(decay)
-    level, ild = power_levels(ear_power(_numpy(masks.mixture), _numpy(masks.difference), _numpy(masks.reverb), dec))
-    return float(level), float(ild)
-
-
-def _numpy(t):
-    if t is None:
-        return None
-    if isinstance(t, torch.Tensor):
-        return t.detach().double().cpu().numpy()
-    return np.asarray(t, dtype=np.float64)
-
-
-# -- what the fast map evaluates -------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class FastMap:
-    """What the fast map evaluates of each cell (see the module docstring); ``exact=True`` evaluates all."""
-
-    bin_stride: int = 8
-    "Every bin_stride-th frequency bin, and the last (33 of 257 bins at 8)."
-    tail_frames: int = 10
-    "Task rir: frames evaluated after the early ones (:func:`early_frames`), geometrically spaced to the last."
-
-    def __post_init__(self):
-        for name in ("bin_stride", "tail_frames"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"FastMap.{name} must be a positive integer, got {getattr(self, name)!r}")
-
-
-def bin_subset(n_freq: int, stride: int) -> tuple[torch.Tensor, np.ndarray]:
-    """(bins [f] int64: every ``stride``-th and the last, weights [f] float64 summing to 1): the
-    trapezoid rule over the bin index, so that ``power @ weights`` estimates the mean over all bins."""
-    bins = np.unique(np.append(np.arange(0, n_freq, stride), n_freq - 1))  # [f]
-    if len(bins) == 1:
-        return torch.from_numpy(bins), np.ones(1)
-    gaps = np.diff(bins).astype(np.float64)
-    weights = np.zeros(len(bins))
-    weights[:-1] += gaps / 2
-    weights[1:] += gaps / 2
-    return torch.from_numpy(bins), weights / weights.sum()
-
-
-def early_frames(renderer) -> int:
-    """Frames of the response to evaluate one by one: until the direct sound from the scene's
-    farthest corner (the box's diagonal) has arrived, plus the analysis window's length in
-    frames and one: after that a response is its decaying tail (task rir)."""
-    b, stft = renderer.model.binauralizer, renderer.stft
-    lo, hi = renderer.frame.to_normalised(np.asarray(renderer.bounds, dtype=np.float64))
-    speed = b.cfg.sound_speed if b.cfg.sound_speed > 0 else 343.0 * renderer.frame.scale  # normalised units / s
-    hop = stft.hop_length / stft.sample_rate
-    arrival = float(np.linalg.norm(hi - lo)) / speed / hop  # frames
-    return int(math.ceil(arrival)) + -(-stft.win_length // stft.hop_length) + 1
-
-
-def frame_nodes(n_frames: int, early: int, tail: int) -> torch.Tensor:
-    """Frames [n] int64 to evaluate: ``0 .. early - 1``, then ``tail`` geometrically spaced up to
-    the last frame (fewer where they round to the same frame); all frames when that is as many."""
-    if early + tail >= n_frames:
-        return torch.arange(n_frames)
-    later = np.rint(np.geomspace(early, n_frames - 1, tail)).astype(np.int64)
-    return torch.from_numpy(np.unique(np.concatenate([np.arange(early), later])))
-
-
-def frame_interpolation(nodes: torch.Tensor, n_frames: int) -> torch.Tensor:
-    """``[n, N]`` float32: ``y_nodes @ M`` interpolates values at the frames ``nodes`` (increasing,
-    from 0 to N - 1) linearly to every frame."""
-    x = nodes.double().numpy()
-    frames = np.arange(n_frames, dtype=np.float64)
-    right = np.clip(np.searchsorted(x, frames, side="right"), 1, len(x) - 1)  # [N]
-    left = right - 1
-    w = np.clip((frames - x[left]) / np.maximum(x[right] - x[left], 1e-12), 0.0, 1.0)
-    M = np.zeros((len(x), n_frames))
-    M[left, np.arange(n_frames)] += 1.0 - w
-    M[right, np.arange(n_frames)] += w
-    return torch.from_numpy(M).float()
-
-
-PEAK_MARGIN = 10.0 ** (12.0 / 10.0)
-"""A fast cell whose loudest evaluated bin is within 12 dB (power ratio) of the headroom is evaluated
-again at every bin: the limit needs the loudest of all, and learned spectra can peak between the
-evaluated bins (3.5 dB above them next to the source on a two-room scene, which then missed the limit)."""
-
-CONTEXT_CHUNK = 4
-"Listener contexts per call of F: F's per-point temporaries ([4 k, width]) stay in cache (2.5x faster than 64 on the demo)."
-
-
-def listener_contexts(model, cache, listener: torch.Tensor) -> torch.Tensor:
-    """C_L [n, c] of listener [n, 3] (normalised): the vicinity search and F, as :meth:`AVGSModel.masks`
-    computes them, :data:`CONTEXT_CHUNK` listeners at a time."""
-    parts = []
-    for i in range(0, len(listener), CONTEXT_CHUNK):
-        pos = listener[i : i + CONTEXT_CHUNK]  # [m, 3]
-        parts.append(model.context_at(pos, model.vicinity(pos, cache), cache))  # [m, c]
-    return torch.cat(parts)
 
 
 # -- the grid ------------------------------------------------------------------------------
@@ -345,7 +206,7 @@ def propagation_map(
     batch: int = 256, chunk: int | None = None, cancel: Callable[[], bool] | threading.Event | None = None,
     grid: MapGrid | None = None, exact: bool = False, fast: FastMap = FastMap(), workers: int = 1,
 ) -> Iterator[PropagationMap]:
-    """Compute the map of ``renderer`` (a :class:`~avgs.inference.SceneRenderer`) for a source
+    """Compute the map of ``renderer`` (a :class:`~avgs.render.renderer.SceneRenderer`) for a source
     (world; None: the trained one) and a listener ``yaw`` (degrees), batch by batch.
 
     Yields a snapshot (its own arrays) after every ``batch`` cells, coarse to fine; the last
@@ -381,11 +242,8 @@ def propagation_map(
         source_n = frame.to_normalised(source_w)
     src64 = torch.tensor(source_n, dtype=torch.float64)  # [3], as SceneRenderer.pose makes it
     src = src64.to(**as_model)
-    rir = getattr(renderer, "task", "binaural") == "rir"  # the impulse-response task: the response's own ear gains
     with torch.inference_mode():
         cached_source = model.source_context(src, cache)
-        tail = None if rir else model.binauralizer.reverb
-        decay = None if tail is None else tail.decay().double().cpu().numpy()  # [F]
 
     ny, nx = grid.shape
     order = coarse_to_fine(ny, nx)
@@ -395,7 +253,7 @@ def propagation_map(
     lo, hi = np.asarray(renderer.bounds, dtype=np.float64)  # cells outside the box: on its edge, as render() puts them
     lis64 = torch.from_numpy(frame.to_normalised(np.clip(grid.positions(), lo, hi)))  # [ny * nx, 3] float64
     theta = signed_direction(lis64, torch.full((ny * nx,), math.radians(yaw), dtype=torch.float64), src64)  # [ny * nx]
-    cell_power = (_ExactCells if exact else _FastCells)(renderer, yaw, src, cached_source, decay, fast)
+    cell_power = _Cells(renderer, yaw, src, cached_source, None if exact else fast)
     headroom = 10.0 ** (HEADROOM_DB / 10.0)  # power
 
     def limited_levels(power: np.ndarray, weights) -> tuple[np.ndarray, np.ndarray]:
@@ -437,74 +295,20 @@ def propagation_map(
             pool.shutdown(wait=True, cancel_futures=True)
 
 
-class _ExactCells:
-    """Each ear's power per bin ``[n, 2, F]`` of cells, as the single-pose path computes them."""
+class _Cells:
+    """Each ear's power ``[n, 2, F]`` of cells, from the renderer's task model
+    (:meth:`~avgs.render.tasks.TaskModel.cell_power`): exact, as the single-pose path computes them,
+    or fast (``fast``: a subset of the bins, :attr:`weights` [f], and what else the model may
+    leave out; ``every_bin``: all bins)."""
 
-    weights = None  # the plain mean over all bins
-
-    def __init__(self, renderer, yaw: float, source: torch.Tensor, cached_source, decay, fast=None):
-        self.renderer, self.yaw, self.source, self.cached_source, self.decay = renderer, yaw, source, cached_source, decay
+    def __init__(self, renderer, yaw: float, source: torch.Tensor, cached_source, fast: FastMap | None):
+        self.task, self.yaw, self.source, self.cached_source, self.fast = renderer.task_model, yaw, source, cached_source, fast
         self.as_model = dict(device=renderer.device, dtype=renderer.dtype)
-
-    def __call__(self, lis64: torch.Tensor, theta: torch.Tensor) -> np.ndarray:
-        r = self.renderer
-        listener = lis64.to(**self.as_model)
-        if r.task == "rir":
-            return _response_power(r, listener, self.yaw, self.source, self.cached_source)
-        m = r.model.masks(listener, theta.to(**self.as_model), self.source, self.cached_source, r.cache)
-        return ear_power(_numpy(m.mixture), _numpy(m.difference), _numpy(m.reverb), self.decay)
-
-
-class _FastCells:
-    """Each ear's power ``[n, 2, f]`` at a subset of the bins (:attr:`weights` [f]; ``every_bin``:
-    all, [n, 2, F]) and, task rir, from a subset of the frames (:class:`FastMap`); the listener's
-    context is exact."""
-
-    def __init__(self, renderer, yaw: float, source: torch.Tensor, cached_source, decay, fast: FastMap):
-        self.renderer, self.source, self.cached_source = renderer, source, cached_source
-        self.as_model = dict(device=renderer.device, dtype=renderer.dtype)
-        b = renderer.model.binauralizer
-        self.rir = renderer.task == "rir"
-        self.bins, self.weights = bin_subset(b.n_freq, fast.bin_stride)  # [f], [f]
-        self.full_decay, self.decay = decay, None if decay is None else decay[self.bins.numpy()]
-        if self.rir:
-            self.frames = frame_nodes(b.n_frames, early_frames(renderer), fast.tail_frames)  # [n_t]
-            self.interpolate = frame_interpolation(self.frames, b.n_frames).to(**self.as_model)  # [n_t, N]
-            self.yaw_rad = math.radians(yaw % 360.0)  # as SceneRenderer poses a response
+        self.bins, self.weights = (None, None) if fast is None else bin_subset(renderer.n_freq, fast.bin_stride)  # [f], [f]
 
     def __call__(self, lis64: torch.Tensor, theta: torch.Tensor, every_bin: bool = False) -> np.ndarray:
-        r = self.renderer
-        model, b = r.model, r.model.binauralizer
-        bins, decay = (None, self.full_decay) if every_bin else (self.bins, self.decay)
-        listener = lis64.to(**self.as_model)  # [n, 3]
-        n = len(listener)
-        context = None
-        if model.field is not None:
-            c_s = self.cached_source[0][None].expand(n, -1)  # [n, c]
-            context = torch.cat([c_s, listener_contexts(model, r.cache, listener)], dim=-1)  # [n, 2c] = C_S (+) C_L
-        if not self.rir:
-            m = b(listener[:, :2], theta.to(**self.as_model), context, r.cache.frequency, bins)
-            return ear_power(_numpy(m.mixture), _numpy(m.difference), _numpy(m.reverb), decay)
-        from avgs.acoustics.rir_model import ear_transfer
-
-        source = self.source[None].expand(n, -1)  # [n, 3]
-        yaw = torch.full((n,), self.yaw_rad, **self.as_model)
-        theta_r = signed_direction(listener, yaw, source)  # [n], as RIRModel.log_magnitudes
-        log_mag = b(listener, source, theta_r, yaw, context, r.cache.frequency, self.frames, bins)  # [n, 2, f, n_t]
-        gains = ear_transfer(model.magnitudes(log_mag @ self.interpolate).float().cpu(), r.stft)  # [n, 2, f]
-        return gains.double().numpy() ** 2
-
-
-def _response_power(renderer, listener: torch.Tensor, yaw: float, source: torch.Tensor, cached_source) -> np.ndarray:
-    """Task rir: each ear's power per bin ``[n, 2, F]`` of the predicted responses at ``listener`` [n, 3]
-    (normalised), the same gains :meth:`SceneRenderer.masks` reports for one pose."""
-    from avgs.acoustics.rir_model import ear_transfer
-
-    model = renderer.model
-    yaw_rad = torch.full((len(listener),), math.radians(yaw % 360.0), dtype=torch.float64).to(listener.device, listener.dtype)
-    log_mag = model.log_magnitudes(listener, yaw_rad, source, renderer.cache, cached_source)[0]  # [n, 2, F, N]
-    gains = ear_transfer(model.magnitudes(log_mag.float()).cpu(), renderer.stft)  # [n, 2, F]
-    return gains.double().numpy() ** 2
+        return self.task.cell_power(lis64.to(**self.as_model), theta.to(**self.as_model), self.yaw, self.source,
+                                    self.cached_source, None if every_bin else self.bins, self.fast)
 
 
 def compute_map(renderer, source=None, yaw: float = 0.0, z: float | None = None, size=64, **kw) -> PropagationMap:

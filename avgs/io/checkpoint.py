@@ -32,7 +32,7 @@ cannot read, contents that no longer match the stored checksum (a damaged copy),
 key, a wrong type, a tensor of the wrong shape for the stored configuration (the network
 weights are compared with a model built from it on the ``meta`` device: no memory spent),
 NaN or Inf, STFT settings out of range, a malformed training state. So whatever
-:class:`avgs.inference.SceneRenderer`, ``avgs info``, ``avgs prune`` and ``avgs train --resume``
+:class:`avgs.render.renderer.SceneRenderer`, ``avgs info``, ``avgs prune`` and ``avgs train --resume``
 do with a loaded checkpoint, they do it with a well-formed one.
 """
 
@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from avgs.atomic import torch_save
+from avgs.io.atomic import torch_save
 from avgs.config import STFT, STFTConfig, TrainConfig
 from avgs.data.frame import SceneFrame
 

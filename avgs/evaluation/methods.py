@@ -1,5 +1,5 @@
-"""What a *method* of the benchmark is: the contract between :mod:`avgs.baselines`,
-trained checkpoints and the scoring in :mod:`avgs.evaluate`.
+"""What a *method* of the benchmark is: the contract between :mod:`avgs.evaluation.baselines`,
+trained checkpoints and the scoring in :mod:`avgs.evaluation.binaural`.
 
 A method is any callable ``(clip: AudioClip, scene: RWAVSScene) -> binaural [2, T]``
 (numpy or torch, T = the clip's length), or a :class:`Prediction` when it made its

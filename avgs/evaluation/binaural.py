@@ -2,14 +2,14 @@
 
 A *method* is any callable ``(clip: AudioClip, scene: RWAVSScene) -> binaural [2, T]``
 (numpy or torch, T = the clip's length), or a :class:`Prediction` when the method made
-its waveform from predicted magnitudes. The baselines of :mod:`avgs.baselines` are
+its waveform from predicted magnitudes. The baselines of :mod:`avgs.evaluation.baselines` are
 methods; :class:`CheckpointMethod` turns a trained ``scene.ckpt`` into one. A method may
 also define ``applies_to(scene) -> bool``; scenes it does not apply to are left out of
 its scores (a checkpoint applies to the scene it was trained on).
 
-Columns: MAG of the waveform (:func:`avgs.metrics.mag`, what a listener hears), ENV,
+Columns: MAG of the waveform (:func:`avgs.evaluation.metrics.mag`, what a listener hears), ENV,
 the ILD error, and MAGp, MAG of the predicted magnitudes
-(:func:`avgs.metrics.mag_spectrogram`), AV-NeRF's own evaluation convention and the one
+(:func:`avgs.evaluation.metrics.mag_spectrogram`), AV-NeRF's own evaluation convention and the one
 its published numbers use. For a method that returns only a waveform, MAGp is its MAG.
 
 Aggregation follows RWAVS: a scene's score is the mean over its val clips; an
@@ -30,11 +30,12 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from avgs import dsp, metrics
-from avgs.baselines import BASELINES
+from avgs import dsp
+from avgs.evaluation import metrics
+from avgs.evaluation.baselines import BASELINES
 from avgs.config import STFT, SynthesisConfig
 from avgs.data.rwavs import AudioClip, RWAVSScene, is_scene_dir
-from avgs.methods import Method, Prediction
+from avgs.evaluation.methods import Method, Prediction
 
 
 METRICS = ("MAG", "ENV", "ILD", "MAGp")
@@ -42,7 +43,7 @@ CKPT_PREFIX = "ckpt:"
 
 
 class CheckpointMethod:
-    """A trained checkpoint as a method, through :class:`avgs.inference.SceneRenderer`.
+    """A trained checkpoint as a method, through :class:`avgs.render.renderer.SceneRenderer`.
 
     The clip's normalised listener goes to world coordinates with the scene's frame and
     its yaw to degrees, the renderer's public convention (ARCHITECTURE.md).
@@ -52,7 +53,7 @@ class CheckpointMethod:
         self.path = Path(path)
         if not self.path.is_file():
             raise FileNotFoundError(f"{self.path}: checkpoint missing")
-        from avgs.inference import SceneRenderer  # heavy, and only needed here
+        from avgs.render.renderer import SceneRenderer  # heavy, and only needed here
 
         self.renderer = SceneRenderer.load(self.path, device=device, synthesis=synthesis)
 

@@ -1,7 +1,7 @@
 """Reference methods of the RIR task: the training responses, interpolated, plain or through a codec.
 
 A method of the RIR task is a callable ``(train: RIRSet, query: RIRSet) -> [N, 2, L]``
-(:mod:`avgs.evaluate_rir`): given the training responses of a scene, predict the response
+(:mod:`avgs.evaluation.impulse_response`): given the training responses of a scene, predict the response
 of each query (source, receiver, yaw). These baselines read only the query's positions and
 yaw, never its responses. Every query is answered from training responses of the same
 orientation (the same yaw, to :data:`YAW_TOL_DEG`); a yaw no training response has is an
@@ -27,7 +27,7 @@ error.
   is nearest per stage. Exact at training pairs, the mean of two responses at their
   midpoint.
 - **opus-** / **aac-** *nearest* / *linear*: the same on the training responses after an
-  Opus or AAC round trip (:mod:`avgs.codecs`, bitrates in :data:`avgs.codecs.CODECS`): what
+  Opus or AAC round trip (:mod:`avgs.evaluation.codecs`, bitrates in :data:`avgs.evaluation.codecs.CODECS`): what
   storing the measured responses compressed, and interpolating them, would give.
 """
 
@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from avgs import codecs
+from avgs.evaluation import codecs
 from avgs.config import STFT
 
 if TYPE_CHECKING:

@@ -25,7 +25,7 @@ import functools
 import torch
 
 from avgs.config import STFT, STFTConfig
-from avgs.kernels import project_magnitudes
+from avgs.dsp.kernels import project_magnitudes
 
 GRIFFIN_LIM_BLOCK_FRAMES = 4096
 "Frames per block of :func:`griffin_lim` on long inputs (about 24 s at AV-NeRF's hop): memory stays bounded."
@@ -142,7 +142,7 @@ def _iterate(grid: FrameGrid, start: torch.Tensor, target: torch.Tensor, length:
 
     The inverse STFT is linear, so the momentum step ``c_k = p_k + m (p_k - p_(k-1))`` is
     taken on the projections' padded signals (a quarter of the numbers of a spectrogram),
-    and the magnitude projection is one loop on the CPU (:func:`avgs.kernels.project_magnitudes`).
+    and the magnitude projection is one loop on the CPU (:func:`avgs.dsp.kernels.project_magnitudes`).
     """
     if iterations == 0:
         return project_magnitudes(start) if phase else grid.synthesise(start)

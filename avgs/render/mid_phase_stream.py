@@ -1,6 +1,6 @@
 """The default synthesis (one phase retrieved for the mid magnitudes) block by block.
 
-:meth:`avgs.inference.SceneRenderer.render` by default gives both ears' predicted
+:meth:`avgs.render.renderer.SceneRenderer.render` by default gives both ears' predicted
 magnitudes the phase that fast Griffin-Lim retrieves for the mid magnitudes
 (:func:`avgs.acoustics.synthesis.mid_phase_waveform`). :class:`MidPhaseStream` computes the
 same waveform from blocks of any size:
@@ -9,7 +9,7 @@ same waveform from blocks of any size:
    ends), and each frame's magnitudes are computed at once: the source's, the tail's power
    by its one-pole recursion, the ears' and the mid (:func:`~avgs.acoustics.synthesis.ear_magnitudes`);
 2. after K iterations a frame depends only on frames within ``4 (K + 2)`` of it (the
-   window's reach per iteration; :func:`avgs.phase_retrieval.griffin_lim`), so every
+   window's reach per iteration; :func:`avgs.dsp.phase_retrieval.griffin_lim`), so every
    ``block_frames`` frames the phase is retrieved on them and that margin on both sides,
    and their output is final.
 
@@ -20,7 +20,7 @@ lags the input by at most :attr:`MidPhaseStream.latency` samples: the margin and
 the pose's filter streams with no more than a convolution block of delay
 (``SynthesisConfig(method="filter")``, what the explorer plays while a pose changes; a
 settled pose it renders in full with this stream: :mod:`avgs_viewer.refine`) and the
-filter's phase with 29 ms (:class:`avgs.streaming.BinauralStream`).
+filter's phase with 29 ms (:class:`avgs.render.streaming.BinauralStream`).
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from avgs.acoustics.convolution import mono_block
 from avgs.acoustics.reverb_tail import tail_power_recursive
 from avgs.acoustics.synthesis import Masks, mid_phase_parts, mid_phase_waveform, shared_phase_waveform
 from avgs.config import STFT, STFTConfig, SynthesisConfig
-from avgs.phase_retrieval import FrameGrid, retrieve_phase
-from avgs.streaming import one_pose
+from avgs.dsp.phase_retrieval import FrameGrid, retrieve_phase
+from avgs.render.streaming import one_pose
 
 BLOCK_FRAMES = 16
 "Frames made final per phase retrieval (93 ms at AV-NeRF's hop): shorter adds work, longer adds delay."

@@ -1,8 +1,8 @@
 """What the listener sees: G, the scene's 3D Gaussian Splatting model, rendered from a listener pose.
 
 A checkpoint saved with G holds all of its parameters (means, quaternions, log-scales,
-opacity logits, SH of degree 3, in the normalised frame: :mod:`avgs.checkpoint`);
-:class:`~avgs.inference.SceneRenderer` keeps only G's centres and colours for drawing, so
+opacity logits, SH of degree 3, in the normalised frame: :mod:`avgs.io.checkpoint`);
+:class:`~avgs.render.renderer.SceneRenderer` keeps only G's centres and colours for drawing, so
 :meth:`ListenerView.load` reads the checkpoint's ``gaussians`` again and renders them
 with :func:`avgs.gaussians.rasterize.rasterize` (gsplat on CUDA, else our PyTorch
 rasterizer: about 0.3 s for 50k Gaussians at 192x144 on one CPU core).
@@ -51,7 +51,7 @@ class ListenerView:
     @classmethod
     def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "ListenerView | None":
         """From a checkpoint file; None when it was saved without G (``--no-gaussians``)."""
-        from avgs.checkpoint import load_checkpoint
+        from avgs.io.checkpoint import load_checkpoint
 
         ckpt = load_checkpoint(path, map_location="cpu")
         if not ckpt.get("gaussians"):

@@ -93,7 +93,7 @@ def _take_points(ckpt: dict, keep: np.ndarray) -> dict:
 
 def current_k(ckpt: dict) -> int:
     """k of a checkpoint: its explicit ``vicinity_k`` (capped at N) or the percentile of N."""
-    from avgs.checkpoint import config_of
+    from avgs.io.checkpoint import config_of
 
     n = int(ckpt["audio_points"]["X"].shape[0])
     if ckpt.get("vicinity_k") is not None:
