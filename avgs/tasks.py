@@ -37,6 +37,8 @@ class Task:
     "Its scoring module (:mod:`avgs.evaluation`): ``find_scenes``, ``load_method``, ``evaluate``, ``format_report``."
     data: str
     "The reader of its scenes' targets (:mod:`avgs.data`)."
+    synth: str
+    "``avgs synth --task NAME``'s writer of a scene with physical ground truth (:mod:`avgs.commands.synth`)."
 
     def part(self, which: str):
         """The object named by the field ``which`` (``"model"``, ``"renderer"``, ...), imported now."""
@@ -54,6 +56,7 @@ BINAURAL = Task(
     training="avgs.train.binaural:BinauralTraining",
     evaluation="avgs.evaluation.binaural",
     data="avgs.data.rwavs:RWAVSScene",
+    synth="avgs.commands.synth:run_binaural",
 )
 
 IMPULSE_RESPONSE = Task(
@@ -65,6 +68,7 @@ IMPULSE_RESPONSE = Task(
     training="avgs.train.impulse_responses:ImpulseResponseTraining",
     evaluation="avgs.evaluation.impulse_response",
     data="avgs.data.rir:RIRScene",
+    synth="avgs.commands.synth:run_rir",
 )
 
 TASKS: dict[str, Task] = {t.name: t for t in (BINAURAL, IMPULSE_RESPONSE)}

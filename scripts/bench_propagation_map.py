@@ -58,7 +58,7 @@ def flops_per_cell(r, fast: FastMap | None) -> tuple[float, str]:
     field = r.vicinity_size * per_point
     b = r.model.binauralizer
     n_bins = b.n_freq if fast is None else len(bin_subset(b.n_freq, fast.bin_stride)[0])
-    if r.task == "rir":
+    if r.source_aware:  # a model of responses: frames too
         W = b.width
         n_frames = b.n_frames if fast is None else len(frame_nodes(b.n_frames, early_frames(r), fast.tail_frames))
         pose = _weights([b.pose_proj, *b.pose_mlp]) + (b.context_proj.weight.numel() if b.context_proj else 0)
@@ -120,7 +120,7 @@ def main() -> None:
     fast = FastMap()
     b = r.model.binauralizer
     what = f"{len(bin_subset(b.n_freq, fast.bin_stride)[0])} of {b.n_freq} bins"
-    if r.task == "rir":
+    if r.source_aware:  # a model of responses: frames too
         what += f", {len(frame_nodes(b.n_frames, early_frames(r), fast.tail_frames))} of {b.n_frames} frames " \
                 f"({early_frames(r)} early, {fast.tail_frames} later)"
     configs = list(results)

@@ -6,7 +6,7 @@ Two sets of poses, neither seen in training:
 - the scene's validation clips;
 - ``--probes N`` random poses 0.7-2 m from the source at its height, in the walkable
   area, with random yaw, rendered afresh by the simulator that made the scene
-  (:func:`avgs.data.synth.simulate.binaural_rirs`; generated scenes only), playing the
+  (:func:`avgs.synth.simulate.binaural_rirs`; generated scenes only), playing the
   first validation clip.
 
 For each: the correlation of predicted with true ILD, the mean absolute error in dB,
@@ -30,8 +30,8 @@ from avgs.evaluation.binaural import CheckpointMethod
 
 def probe_poses(scene_dir: str, n: int, mono: np.ndarray, seed: int = 0):
     """Up to ``n`` (listener [3] world, yaw degrees, true binaural [2, T]) around the source."""
-    from avgs.data.synth.poses import is_walkable
-    from avgs.data.synth.simulate import binaural_rirs, load_spec, load_settings
+    from avgs.synth.poses import is_walkable
+    from avgs.synth.simulate import binaural_rirs, load_spec, load_settings
 
     spec, settings = load_spec(scene_dir), load_settings(scene_dir)
     source = np.asarray(spec.source, dtype=np.float64)

@@ -38,7 +38,7 @@ $AVGS prune "$WORK/scene.ckpt" --out assets/demo/scene.ckpt --scene "$SCENE" --k
 # 5. The clip to listen to: 6 s of the generator's speech-like signal (seed 11), 16-bit.
 .venv/bin/python - <<'PY'
 import numpy as np, soundfile as sf
-from avgs.data.synth.signals import speech_like
+from avgs.synth.signals import speech_like
 x = speech_like(6 * 22050, np.random.default_rng(11))
 sf.write("assets/demo/clip.wav", (0.7 * x / np.max(np.abs(x))).astype(np.float32), 22050, subtype="PCM_16")
 PY

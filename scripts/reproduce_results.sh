@@ -59,7 +59,7 @@ sweep --data data/presets --scenes office_0 --out runs/ablation --common="$COMMO
 baselines runs/ablation/baselines.json data/presets --scene office_0 --method stereo-energy
 
 # The same four presets with the raw KEMAR head (--raw-hrtf: the ears' own colouration stays
-# in the audio, as in a binaural recording and in DESIGN's anchor measurement).
+# in the audio, as in a binaural recording and in the anchor measurement of docs/design.md, "Metrics and baselines").
 for p in $PRESETS; do
   [ -d data/rawhrtf/$p ] || $A synth data/rawhrtf --preset ${p%_0} --scene-id $p --poses 250 --seed 0 --raw-hrtf --no-progress
 done

@@ -17,7 +17,7 @@ each source at the scene's source height:
    point within 1 m of it is hidden too); of those, the pair whose two sources stand nearest
    the scene's training sources, so that the check measures the wall and not extrapolation.
 
-Truth: :func:`avgs.data.synth.simulate.receiver_rirs` with the scene's recorded simulation
+Truth: :func:`avgs.synth.simulate.receiver_rirs` with the scene's recorded simulation
 settings (``scene.json`` ``rir.simulation``), the recorded delay cut off the front and cut to
 the scene's length, exactly as ``avgs synth --task rir`` wrote the training responses.
 Predictions: ``SceneRenderer.predict_responses`` of the AV-GS and the ``--no-context``
@@ -50,9 +50,9 @@ import numpy as np
 
 from avgs.io.atomic import atomic_path, check_output, write_text
 from avgs.data.rir import RIRScene, RIRSet
-from avgs.data.synth.poses import is_walkable
-from avgs.data.synth.presets import SceneSpec
-from avgs.data.synth.simulate import SimSettings, load_spec, receiver_rirs
+from avgs.synth.poses import is_walkable
+from avgs.synth.presets import SceneSpec
+from avgs.synth.simulate import SimSettings, load_spec, receiver_rirs
 from avgs.render.renderer import SceneRenderer
 from avgs.evaluation.interpolation import INTERPOLATIONS
 

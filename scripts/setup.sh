@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Sets up everything `make run` and `make test` need on a fresh Debian machine with
-# Python 3.11: the system libraries of DESIGN.md §7, a .venv, torch==2.13.0 (CPU wheel)
+# Python 3.11: the system libraries of docs/design.md ("Machines"), a .venv, torch==2.13.0 (CPU wheel)
 # and this package in editable mode with its test and scale (Ray, for avgs sweep) extras.
 # Safe to run twice: each step is skipped when its result is already there.
 set -euo pipefail

@@ -20,7 +20,7 @@ FOREIGN_ENTRY = {"real_scene": {"source_position": [0.1, -0.2, 0.3]}}
 @pytest.fixture(scope="session")
 def quick_scene(tmp_path_factory) -> Path:
     """Path of a quick synthetic office scene (DATA_ROOT/office_quick)."""
-    from avgs.data.synth.writer import SynthConfig, write_scene
+    from avgs.synth.writer import SynthConfig, write_scene
 
     root = tmp_path_factory.mktemp("synth_quick")
     result = write_scene(root, "office_quick", SynthConfig.quick_config("office", seed=0, workers=1), progress=False)
@@ -65,8 +65,8 @@ def one_source_ckpt(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def quick_presets(tmp_path_factory) -> dict[str, Path]:
     """{preset: scene folder} of quick scenes of every preset in one data root."""
-    from avgs.data.synth.presets import PRESETS
-    from avgs.data.synth.writer import SynthConfig, write_scene
+    from avgs.synth.presets import PRESETS
+    from avgs.synth.writer import SynthConfig, write_scene
 
     root = tmp_path_factory.mktemp("synth_presets")
     (root / "position.json").write_text(json.dumps(FOREIGN_ENTRY))

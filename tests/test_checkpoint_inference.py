@@ -11,11 +11,11 @@ import torch
 from avgs.io.checkpoint import (
     FORMAT_VERSION,
     load_checkpoint,
-    outline_from_metadata,
     save_checkpoint,
     untrained_checkpoint,
 )
 from avgs.data.frame import SceneFrame
+from avgs.data.scene_geometry import outline_from_metadata
 from avgs.render.renderer import SceneRenderer
 
 ROOM = np.array([[0.0, 0.0, 0.0], [6.0, 4.0, 3.0]])

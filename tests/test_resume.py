@@ -209,6 +209,7 @@ def test_killed_runs_resume_bit_identically(quick_scene, tmp_path):
 def test_resume_refuses_a_checkpoint_without_the_tasks_training_state(one_source_ckpt, tmp_path):
     from avgs.io.checkpoint import save_checkpoint, untrained_checkpoint
     from avgs.config import TrainConfig
+    from avgs.tasks import IMPULSE_RESPONSE
     from avgs.train.pipeline import resume_from
 
     bare = tmp_path / "bare.ckpt"
@@ -216,6 +217,6 @@ def test_resume_refuses_a_checkpoint_without_the_tasks_training_state(one_source
     with pytest.raises(ValueError, match="bare.ckpt: holds no training state to resume from"):
         resume_from(bare, TrainConfig(), tmp_path / "log.jsonl")
     with pytest.raises(ValueError, match="holds no RIR training state to resume from"):
-        resume_from(one_source_ckpt, TrainConfig(), tmp_path / "log.jsonl", task="rir")  # a binaural-task run
+        resume_from(one_source_ckpt, TrainConfig(), tmp_path / "log.jsonl", task=IMPULSE_RESPONSE)  # a binaural-task run
     resumed, cfg, log, points, _ = resume_from(one_source_ckpt, TrainConfig(), tmp_path / "log.jsonl")
     assert cfg.acoustic.iterations == TrainConfig().acoustic.iterations and points.num_points == len(resumed["audio_points"]["X"])

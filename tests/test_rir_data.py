@@ -21,11 +21,11 @@ from scipy.io import wavfile
 from avgs.cli import main
 from avgs.data.rir import FORMAT, RIRScene, is_rir_scene, rir_file_name
 from avgs.data.rwavs import RWAVSScene
-from avgs.data.synth.grid import GridConfig, make_grid
-from avgs.data.synth.poses import is_walkable
-from avgs.data.synth.presets import RIR_ENVIRONMENTS, RIR_PRESETS, make_spec
-from avgs.data.synth.rir_writer import DEFAULT_GRIDS, RIRConfig, response_length, write_rir_scene
-from avgs.data.synth.simulate import SimSettings, binaural_rirs, load_spec
+from avgs.synth.grid import GridConfig, make_grid
+from avgs.synth.poses import is_walkable
+from avgs.synth.presets import RIR_ENVIRONMENTS, RIR_PRESETS, make_spec
+from avgs.synth.rir_writer import DEFAULT_GRIDS, RIRConfig, response_length, write_rir_scene
+from avgs.synth.simulate import SimSettings, binaural_rirs, load_spec
 
 SR = 22050
 SPLITS = ("train", "val", "heldout")

@@ -14,7 +14,6 @@ import pytest
 
 from avgs.evaluation import binaural as evaluate, codecs, impulse_response as evaluate_rir, interpolation as rir_baselines, metrics
 from avgs.cli import main
-from avgs.commands.eval import RIR_DEFAULT_METHODS
 from avgs.data.rir import RIRScene, RIRSet
 
 FS = 22050
@@ -269,7 +268,7 @@ def test_cli_errors_are_one_clear_line(quick_root, tmp_path, capsys):
 
 
 def test_the_default_methods_are_the_baselines():
-    assert list(RIR_DEFAULT_METHODS) == list(rir_baselines.RIR_BASELINES)
+    assert list(evaluate_rir.DEFAULT_METHODS) == list(rir_baselines.RIR_BASELINES)
 
 
 @pytest.mark.slow

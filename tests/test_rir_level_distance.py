@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from avgs.data.synth.grid import grid_points
-from avgs.data.synth.poses import is_walkable
-from avgs.data.synth.presets import make_spec
+from avgs.synth.grid import grid_points
+from avgs.synth.poses import is_walkable
+from avgs.synth.presets import make_spec
 
 
 def _script():

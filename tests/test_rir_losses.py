@@ -9,7 +9,7 @@ import torch
 
 from avgs.acoustics.rir_binauralizer import RIRBinauralizer
 from avgs.config import STFT, RIRConfig, TrainConfig
-from avgs.train.rir import DECAY_RANGE_DB, band_masks, decay_curves, decay_loss
+from avgs.train.losses import DECAY_RANGE_DB, band_masks, decay_curves, decay_loss
 
 HOP_S = STFT.hop_length / STFT.sample_rate
 N = 120

@@ -38,13 +38,14 @@ def rir_scene(quick_rir_scene):
 @pytest.fixture(scope="module")
 def trained(rir_scene, tmp_path_factory):
     """(checkpoint path, final record) of a quick RIR training on ``rir_scene``."""
-    from avgs.train.rir import rir_quick_config, train_rir
+    from avgs.train.impulse_responses import rir_quick_config
+    from avgs.train.pipeline import train_scene
 
     cfg = rir_quick_config()
     cfg.acoustic.iterations = ITERATIONS
     cfg.eval_every, cfg.checkpoint_every, cfg.log_every = 100, 100, 10
     out = tmp_path_factory.mktemp("rir_train") / "scene.ckpt"
-    final = train_rir(rir_scene, out, cfg, progress=False)
+    final = train_scene(rir_scene, out, cfg, task="rir", progress=False)
     return out, final
 
 
@@ -179,11 +180,12 @@ def test_no_context_control_trains_from_the_command_line(rir_scene, tmp_path):
 
 
 def test_a_killed_run_resumes_bit_exactly(rir_scene, tmp_path, monkeypatch):
-    import avgs.train.rir as rir_train
+    import avgs.train.impulse_responses as rir_train
+    from avgs.train.pipeline import train_scene
 
     cfg = rir_train.rir_quick_config()
     cfg.acoustic.iterations, cfg.checkpoint_every, cfg.eval_every, cfg.rir.eval_responses = 30, 10, 30, 0
-    rir_train.train_rir(rir_scene, tmp_path / "full.ckpt", cfg, progress=False)
+    train_scene(rir_scene, tmp_path / "full.ckpt", cfg, task="rir", progress=False)
     step = rir_train.RIRTrainer.step
 
     def dying(self):
@@ -193,10 +195,10 @@ def test_a_killed_run_resumes_bit_exactly(rir_scene, tmp_path, monkeypatch):
 
     monkeypatch.setattr(rir_train.RIRTrainer, "step", dying)
     with pytest.raises(KeyboardInterrupt):
-        rir_train.train_rir(rir_scene, tmp_path / "part.ckpt", cfg, progress=False)
+        train_scene(rir_scene, tmp_path / "part.ckpt", cfg, task="rir", progress=False)
     assert load_checkpoint(tmp_path / "part.ckpt")["train_state"]["iteration"] == 10
     monkeypatch.setattr(rir_train.RIRTrainer, "step", step)
-    rir_train.train_rir(rir_scene, tmp_path / "part.ckpt", cfg, progress=False, resume=True)
+    train_scene(rir_scene, tmp_path / "part.ckpt", cfg, task="rir", progress=False, resume=True)
     a, b = load_checkpoint(tmp_path / "full.ckpt"), load_checkpoint(tmp_path / "part.ckpt")
     assert torch.equal(a["audio_points"]["X"], b["audio_points"]["X"])
     assert all(torch.equal(a["binauralizer"][k], b["binauralizer"][k]) for k in a["binauralizer"])
@@ -311,7 +313,7 @@ def level_db(h) -> np.ndarray:
 def simulated_responses(scene_dir, sources_world, listener_world, yaw: float = 0.0) -> np.ndarray:
     """The simulator's truth [S, 2, L] for any sources, in the scene's own time frame and scale
     (what ``avgs synth --task rir`` writes: the emission delay cut off, scale 1)."""
-    from avgs.data.synth.simulate import SimSettings, load_spec, receiver_rirs
+    from avgs.synth.simulate import SimSettings, load_spec, receiver_rirs
 
     meta = json.loads((scene_dir / "scene.json").read_text())["rir"]
     settings = SimSettings.from_dict(meta["simulation"])
@@ -329,16 +331,17 @@ def test_level_against_source_distance_follows_the_simulator(tmp_path):
     the room allows (0.5 m up to 5 m; 2 m in rect_small): the predicted level falls with distance
     and stays within 2 dB of the simulator's (measured with the distance law: -0.69, -0.27, -0.48,
     -0.69 dB at 0.5, 1, 1.5, 2 m; with the slope on log d before it: -2.6, -1.3, -0.9, -1.0 dB)."""
-    from avgs.data.synth.poses import is_walkable
-    from avgs.data.synth.simulate import load_spec
-    from avgs.train.rir import rir_quick_config, train_rir
+    from avgs.synth.poses import is_walkable
+    from avgs.synth.simulate import load_spec
+    from avgs.train.impulse_responses import rir_quick_config
+    from avgs.train.pipeline import train_scene
 
     assert cli_main(["synth", str(tmp_path), "--task", "rir", "--preset", "rect_small", "--scene-id", "rs",
                      "--workers", "2", "--no-progress"]) == 0
     scene_dir = tmp_path / "rs"
     cfg = rir_quick_config()
     cfg.acoustic.iterations, cfg.rir.width, cfg.rir.eval_responses = 500, 256, 0
-    train_rir(scene_dir, tmp_path / "rs.ckpt", cfg, progress=False)
+    train_scene(scene_dir, tmp_path / "rs.ckpt", cfg, task="rir", progress=False)
     r = SceneRenderer.load(tmp_path / "rs.ckpt")
     meta = json.loads((scene_dir / "scene.json").read_text())["rir"]
     receivers, z = np.asarray(meta["receivers_world"]), float(np.mean(np.asarray(meta["sources_world"])[:, 2]))

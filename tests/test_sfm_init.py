@@ -27,7 +27,7 @@ def _strip_geometry():
 @pytest.fixture(scope="module")
 def scenes(tmp_path_factory) -> tuple[Path, Path]:
     """(generated office scene with 256x192 frames, its copy without scene.json)."""
-    from avgs.data.synth.writer import SynthConfig, write_scene
+    from avgs.synth.writer import SynthConfig, write_scene
 
     cfg = SynthConfig.quick_config("office", seed=0, poses=24, workers=1)
     cfg.width, cfg.height = 256, 192  # SIFT needs more than the quick preset's 64x48 frames
@@ -53,7 +53,7 @@ def test_triangulated_points_lie_on_the_true_surfaces(scenes):
     from scipy.spatial import cKDTree
 
     from avgs.data.rwavs import read_scene_metadata
-    from avgs.data.synth.geometry import surface_points
+    from avgs.data.scene_geometry import surface_points
     from avgs.gaussians.sfm import MIN_POINTS, sfm_points
 
     scene, stripped = scenes

@@ -21,12 +21,12 @@ from PIL import Image
 from avgs.cli import main
 from avgs.data.frame import signed_direction, yaw_from_c2w
 from avgs.data.rwavs import RWAVSScene, read_camera_path
-from avgs.data.synth.geometry import surface_points
-from avgs.data.synth.materials import MATERIALS
-from avgs.data.synth.poses import is_walkable
-from avgs.data.synth.presets import PRESETS, make_spec
-from avgs.data.synth.simulate import SimSettings, binaural_rirs, load_settings, load_spec
-from avgs.data.synth.writer import SynthConfig, pose_windows, write_scene
+from avgs.data.scene_geometry import surface_points
+from avgs.synth.materials import MATERIALS
+from avgs.synth.poses import is_walkable
+from avgs.synth.presets import PRESETS, make_spec
+from avgs.synth.simulate import SimSettings, binaural_rirs, load_settings, load_spec
+from avgs.synth.writer import SynthConfig, pose_windows, write_scene
 from conftest import FOREIGN_ENTRY
 
 
@@ -269,7 +269,7 @@ def test_kemar_loads_without_importing_slab():
     import subprocess
 
     code = (
-        "import sys; from avgs.data.synth.hrtf import kemar; h = kemar(22050); "
+        "import sys; from avgs.synth.hrtf import kemar; h = kemar(22050); "
         "import numpy as np; i = int(np.argmin(np.abs(h.azimuth_deg - 90) + np.abs(h.elevation_deg))); "
         "e = (h.irs[i] ** 2).sum(-1); print(h.irs.shape, h.sample_rate, e[0] > 4 * e[1], 'slab' in sys.modules)"
     )
@@ -288,7 +288,7 @@ def _diffuse_field_db(irs: np.ndarray, sr: int, bands) -> list[float]:
 def test_raw_and_equalised_heads():
     """The equalised head is flat on the diffuse-field average (within a few dB, 0.3-8 kHz);
     the raw one keeps KEMAR's ear-canal resonance, several dB up at 2-4 kHz against 0.3-1 kHz."""
-    from avgs.data.synth.hrtf import kemar
+    from avgs.synth.hrtf import kemar
 
     bands = [(300, 1000), (2000, 4000), (5000, 8000)]
     low, mid, high = _diffuse_field_db(kemar(22050, False).irs, 22050, bands)

@@ -16,7 +16,7 @@ pytestmark = pytest.mark.slow
 
 
 def test_trained_avgs_beats_stereo_energy_on_a_generated_office(tmp_path):
-    from avgs.data.synth.writer import SynthConfig, write_scene
+    from avgs.synth.writer import SynthConfig, write_scene
 
     torch.set_num_threads(1)
     root = tmp_path / "data"

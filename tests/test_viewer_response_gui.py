@@ -29,14 +29,15 @@ LEFT = QtCore.Qt.MouseButton.LeftButton
 @pytest.fixture(scope="module")
 def rir_ckpt(quick_rir_scene, tmp_path_factory):
     """A source-aware checkpoint: the quick impulse-response scene (3 sources), 20 iterations of its training."""
-    from avgs.train.rir import rir_quick_config, train_rir
+    from avgs.train.impulse_responses import rir_quick_config
+    from avgs.train.pipeline import train_scene
 
     torch.set_num_threads(1)
     cfg = rir_quick_config()
     cfg.acoustic.iterations = 20
     cfg.eval_every = cfg.checkpoint_every = cfg.log_every = 20
     out = tmp_path_factory.mktemp("rir_ckpt") / "rir.ckpt"
-    train_rir(quick_rir_scene, out, cfg, progress=False)
+    train_scene(quick_rir_scene, out, cfg, task="rir", progress=False)
     return out
 
 

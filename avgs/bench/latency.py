@@ -91,9 +91,9 @@ def stage_breakdown(renderer, poses, mono, repeats: int) -> dict[str, Timing]:
             masks = run("binauralizer", lambda: model.binauralizer(lis[:, :2], theta, ctx, cache.frequency))
             h = None
             if renderer.synthesis.method == "filter" or renderer.synthesis.phase == "filter":
-                h = run("impulse response", lambda: renderer._impulse(masks))
+                h = run("impulse response", lambda: renderer.task_model.impulse(masks))
             # the STFTs, the predicted magnitudes, their phase (retrieved, or the filter's), the inverse STFT
-            run("synthesis", lambda: renderer._synthesise(mono, 1.0, masks, renderer.synthesis, impulse=h))
+            run("synthesis", lambda: renderer.task_model.synthesise(masks, mono, renderer.synthesis, impulse=h))
     return sw.timings()
 
 

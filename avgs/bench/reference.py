@@ -31,7 +31,7 @@ class UncachedPath:
             lis, theta, src = r.pose(listener, yaw)
             masks = r.model.masks(lis, theta, src)
         with torch.inference_mode():
-            y, _, _ = r._synthesise(np.asarray(mono, dtype=np.float32), peak, masks.to(torch.float32), r.synthesis)
+            y, _, _ = r.task_model.synthesise(masks, np.asarray(mono, dtype=np.float32) / np.float32(peak), r.synthesis)
             return y * np.float32(peak)
 
 

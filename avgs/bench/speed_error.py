@@ -186,13 +186,13 @@ def score(method, scene) -> dict:
 
 
 def simulator_available() -> str | None:
-    """None when ``avgs.data.synth.simulate`` offers the contract we need, else why not."""
+    """None when ``avgs.synth.simulate`` offers the contract we need, else why not."""
     try:
         import pyroomacoustics  # noqa: F401
 
-        from avgs.data.synth.simulate import SimSettings, binaural_rirs, load_spec  # noqa: F401
+        from avgs.synth.simulate import SimSettings, binaural_rirs, load_spec  # noqa: F401
     except ImportError as exc:
-        return f"avgs.data.synth.simulate not importable ({exc})"
+        return f"avgs.synth.simulate not importable ({exc})"
     return None
 
 
@@ -202,7 +202,7 @@ def simulator_points(scene_dir, scene, orders=SIM_ORDERS, ray_tracing=(False, Tr
 
     from avgs.evaluation import metrics
     from avgs.data.rwavs import SOURCE_FILE, clip_window, read_wav
-    from avgs.data.synth import simulate as sim
+    from avgs.synth import simulate as sim
 
     spec = sim.load_spec(scene_dir)
     try:
@@ -351,7 +351,7 @@ def bench_scene(scene_dir, work: Path, *, iterations: int, n_points: int, repeat
         sim_note = f"simulator skipped on {scene.name}: --skip simulator"
     elif why_not is None and (Path(scene_dir) / "scene.json").is_file():
         try:
-            from avgs.data.synth.simulate import load_settings
+            from avgs.synth.simulate import load_settings
 
             truth = dataclasses.asdict(load_settings(scene_dir))
             rows += [{**base, **row} for row in simulator_points(scene_dir, scene, orders, max_poses=sim_poses, progress=lambda m: say(f"{scene.name}: {m}"))]

@@ -60,7 +60,7 @@ def generate_scenes(work: Path, presets: list[str], poses: int, seed: int, quick
     from avgs.data.rwavs import is_scene_dir
 
     if importlib.util.find_spec("avgs.commands.synth") is None:
-        return [], "the scene generator ('avgs synth', avgs.data.synth) is not installed yet"
+        return [], "the scene generator ('avgs synth', avgs.synth) is not installed yet"
     from avgs.cli import main as cli_main
 
     root = work / "scenes"

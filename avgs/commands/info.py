@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from avgs.tasks import task_named, task_of
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", metavar="scene.ckpt", help="Checkpoint written by 'avgs train'.")
@@ -38,7 +40,7 @@ def summary(path) -> dict:
         "sample_rate": int(stft.sample_rate),
         "stft": {"n_fft": stft.n_fft, "hop_length": stft.hop_length, "win_length": stft.win_length},
         "iteration": int(state.get("iteration", 0)),
-        "task": str(ckpt.get("task", "binaural")),
+        "task": task_of(ckpt).name,
         "training": {
             "stage1_iterations": cfg.gaussians.iterations,
             "iterations": cfg.acoustic.iterations,
@@ -87,8 +89,9 @@ def run(args: argparse.Namespace) -> int:
         return 0
     src = ", ".join(f"{v:.3f}" for v in info["source_position"])
     lo, hi = (", ".join(f"{v:.2f}" for v in row) for row in info["bounds"])
-    print(f"{info['path']}: AV-GS checkpoint, format {info['format_version']}, scene {info['scene']!r}, task {info['task']}"
-          + (" (impulse responses: the source can move)" if info["task"] == "rir" else " (one source position)"))
+    task = task_named(info["task"])
+    print(f"{info['path']}: AV-GS checkpoint, format {info['format_version']}, scene {info['scene']!r}, task {task.name} "
+          f"({task.summary}: {'the source can move' if task.source_aware else 'one source position'})")
     print(f"  audio points {info['audio_points']} (alpha {info['alpha_dim']} dims), gaussians {info['gaussians']}, outline segments {info['outline_segments']}")
     print(f"  source ({src}) world; bounds ({lo}) .. ({hi})")
     print(f"  {info['sample_rate']} Hz, n_fft {info['stft']['n_fft']}, hop {info['stft']['hop_length']}")

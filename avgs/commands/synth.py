@@ -1,6 +1,6 @@
 """``avgs synth OUT_ROOT --preset office --scene-id office_1 --poses 100 --seed 0``:
 generate one synthetic scene with physical ground truth in the RWAVS layout
-(:mod:`avgs.data.synth`), and merge its source into ``OUT_ROOT/position.json``.
+(:mod:`avgs.synth`), and merge its source into ``OUT_ROOT/position.json``.
 
 ``avgs synth OUT_ROOT --task rir --preset rect_small``: an impulse-response scene (the same
 RWAVS files for source 0, plus ``rir/``: binaural responses of every source, receiver and
@@ -14,17 +14,17 @@ import argparse
 import dataclasses
 
 from avgs.commands.flags import field_help
+from avgs.tasks import DEFAULT, TASKS, task_named
 
 
-TASKS = ("binaural", "rir")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from avgs.data.synth.presets import ALL_PRESETS, RIR_PRESETS
-    from avgs.data.synth.writer import SynthConfig
+    from avgs.synth.presets import ALL_PRESETS, RIR_PRESETS
+    from avgs.synth.writer import SynthConfig
 
     parser.add_argument("out_root", metavar="OUT_ROOT", help="Data root; the scene goes to OUT_ROOT/SCENE_ID.")
-    parser.add_argument("--task", choices=TASKS, default="binaural",
+    parser.add_argument("--task", choices=tuple(TASKS), default=DEFAULT,
                         help="binaural: an RWAVS scene (a binaural recording along listener poses); rir: an impulse-response "
                              f"scene (RWAVS files for source 0 plus rir/, docs/rir-layout.md; presets {', '.join(RIR_PRESETS)}).")
     parser.add_argument("--preset", choices=ALL_PRESETS, default=None,
@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace):
     """The :class:`SynthConfig` of ``--task binaural`` (and of the RWAVS part of ``--task rir``)."""
-    from avgs.data.synth.writer import SynthConfig
+    from avgs.synth.writer import SynthConfig
 
     if args.preset is None:
         args.preset = "office"
@@ -77,7 +77,7 @@ def config_from_args(args: argparse.Namespace):
 def rir_config_from_args(args: argparse.Namespace):
     """The :class:`RIRConfig` of ``--task rir``: the preset's grid and the hybrid simulation;
     the RWAVS part takes the binaural flags (--poses, --width, --height, --fov, --raw-hrtf)."""
-    from avgs.data.synth.rir_writer import RIRConfig
+    from avgs.synth.rir_writer import RIRConfig
 
     if args.preset is None:
         args.preset = "rect_small"
@@ -97,7 +97,7 @@ def rir_config_from_args(args: argparse.Namespace):
 
 
 def run_rir(args: argparse.Namespace) -> int:
-    from avgs.data.synth.rir_writer import write_rir_scene
+    from avgs.synth.rir_writer import write_rir_scene
 
     cfg = rir_config_from_args(args)
     scene_id = args.scene_id or f"{cfg.preset}_{cfg.seed}"
@@ -115,10 +115,12 @@ def run_rir(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from avgs.data.synth.writer import write_scene
+    return task_named(args.task, "--task").part("synth")(args)
 
-    if args.task == "rir":
-        return run_rir(args)
+
+def run_binaural(args: argparse.Namespace) -> int:
+    from avgs.synth.writer import write_scene
+
     for flag in ("receiver_spacing", "source_spacing"):
         if getattr(args, flag) is not None:
             raise ValueError(f"--{flag.replace('_', '-')} applies to --task rir only")

@@ -3,7 +3,7 @@ a JSON-lines log (``scene.ckpt.log.jsonl``) and loss / point-count curves
 (``scene.ckpt.curves.png``) next to the checkpoint.
 
 ``--task rir`` trains the impulse-response task on a scene with ``rir/`` (``avgs synth --task
-rir``): G_a and F as for the binaural task, and the RIR variant of B (:mod:`avgs.train.rir`);
+rir``): G_a and F as for the binaural task, and the RIR variant of B (:mod:`avgs.train.impulse_responses`);
 ``--no-context`` is its control without the scene context.
 
 The model's flags are generated from :class:`avgs.config.TrainConfig` (:mod:`avgs.commands.flags`);
@@ -16,6 +16,7 @@ import argparse
 
 from avgs.commands.flags import add_config_flags, apply_config_flags
 from avgs.config import TrainConfig
+from avgs.tasks import DEFAULT, TASKS, task_named
 
 SECTIONS = {"": "", "acoustic": "", "points": "points-", "gaussians": "stage1-", "rir": "rir-"}
 "TrainConfig's sections that get flags, with their flag prefixes (stft is AV-NeRF's and fixed)."
@@ -24,9 +25,9 @@ SECTIONS = {"": "", "acoustic": "", "points": "points-", "gaussians": "stage1-",
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scene", metavar="DATA_ROOT/SCENE_ID", help="Scene folder in the RWAVS layout.")
     parser.add_argument("--out", required=True, metavar="scene.ckpt", help="Checkpoint to write (atomically).")
-    parser.add_argument("--task", choices=("binaural", "rir"), default="binaural",
-                        help="binaural: the RWAVS task (one source, binaural clips); rir: binaural impulse responses of "
-                             "many source positions (a scene written by 'avgs synth --task rir'). Default binaural.")
+    parser.add_argument("--task", choices=tuple(TASKS), default=DEFAULT,
+                        help="; ".join(f"{t.name}: {t.summary}" for t in TASKS.values())
+                             + f" (a scene written by 'avgs synth --task NAME'). Default {DEFAULT}.")
     parser.add_argument("--quick", action="store_true",
                         help="Tiny preset for tests: few iterations, small images (with --task rir: --init sfm, a narrower network).")
     parser.add_argument("--resume", action="store_true", help="Continue from the training state saved in --out.")
@@ -47,11 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     """TrainConfig from the defaults (or the --quick preset) and the flags given."""
     from avgs.acoustics.points import parse_alpha_spec
-    from avgs.train.pipeline import quick_config
-    from avgs.train.rir import rir_quick_config
 
-    rir = getattr(args, "task", "binaural") == "rir"
-    base = (rir_quick_config() if rir else quick_config()) if args.quick else TrainConfig()
+    task = task_named(getattr(args, "task", DEFAULT), "--task")
+    base = task.part("training").quick_config() if args.quick else TrainConfig()
     cfg = apply_config_flags(args, base).validate()
     parse_alpha_spec(cfg.acoustic.alpha_init)
     if cfg.device == "cuda":
@@ -77,7 +76,6 @@ def check_training_outputs(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     from avgs.train.logging import log_paths
     from avgs.train.pipeline import run_stage1_only, train_scene
-    from avgs.train.rir import train_rir
 
     cfg = config_from_args(args)
     check_training_outputs(args)
@@ -87,8 +85,8 @@ def run(args: argparse.Namespace) -> int:
         path = run_stage1_only(args.scene, args.out, cfg, progress=not args.no_progress)
         print(f"wrote {path} (stage 1: G for --out {args.out})")
         return 0
-    train = train_rir if args.task == "rir" else train_scene
-    final = train(args.scene, args.out, cfg, resume=args.resume, progress=not args.no_progress, stage1=args.stage1)
+    final = train_scene(args.scene, args.out, cfg, task=args.task, resume=args.resume, progress=not args.no_progress,
+                        stage1=args.stage1)
     log, png = log_paths(args.out)
     metrics = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in final.items()
                         if not isinstance(v, dict))

@@ -1,6 +1,6 @@
 """Reader of one scene in the RWAVS layout (the real dataset's, and our generator's).
 
-Layout (DESIGN.md §2)::
+Layout (docs/design.md, "Data layout (RWAVS)")::
 
     DATA_ROOT/position.json                {"<scene>": {"source_position": [x, y, z]}}  normalised
     DATA_ROOT/<scene>/binaural_syn_re.wav  2 channels, 22050 Hz
@@ -312,7 +312,9 @@ class RWAVSScene:
     exist; the identity.
     """
 
-    def __init__(self, scene_dir: str | Path, stft: STFTConfig = STFT):
+    def __init__(self, scene_dir: str | Path, stft: STFTConfig = STFT, audio: bool = True):
+        """``audio=False``: the poses, frame, source and metadata only, checked as always; no WAV is
+        read and ``train`` / ``val`` are empty (for tasks whose targets are other files)."""
         try:
             self.root = Path(scene_dir).resolve()
         except (OSError, RuntimeError, ValueError) as exc:  # a symbolic-link loop, an embedded NUL
@@ -329,6 +331,10 @@ class RWAVSScene:
         self.source = self._read_source()
         entries = {split: self._split_entries(poses, split) for split in SPLITS}
         self._check_metadata_agrees(entries)
+        self.train: list[AudioClip] = []
+        self.val: list[AudioClip] = []
+        if not audio:
+            return
         binaural = read_wav(self.root / BINAURAL_FILE, 2, self.sample_rate)  # [2, L]
         mono = read_wav(self.root / SOURCE_FILE, 1, self.sample_rate)[0]  # [L]
         self.train = self._clips(entries["train"], mono, binaural)

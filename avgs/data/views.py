@@ -1,5 +1,5 @@
 """Camera views for stage 1 (the 3D-GS warm-up): RGB key frames with their poses and
-pinhole intrinsics, from a scene folder in the RWAVS layout (DESIGN.md §2).
+pinhole intrinsics, from a scene folder in the RWAVS layout (docs/design.md, "Data layout (RWAVS)").
 
 - Images: ``frames/NNNNN.png`` (the entry's ``file_path``, else ``frames/<its name>``).
 - Poses: ``transforms_scale_{split}.json`` (normalised frame, as the audio model uses);

@@ -113,9 +113,10 @@ def method_names() -> list[str]:
     return [*BASELINES, f"{CKPT_PREFIX}PATH", f"{CKPT_PREFIX}DIR"]
 
 
-def load_method(spec: str, device: str = "cpu", synthesis: SynthesisConfig | None = None) -> Method:
+def load_method(spec: str, device: str = "cpu", synthesis: SynthesisConfig | None = None, progress: bool = False) -> Method:
     """A method from its command-line name: a baseline, ``ckpt:PATH`` or ``ckpt:DIR``
-    (``synthesis``: how checkpoints make their waveforms, default :class:`SynthesisConfig`)."""
+    (``synthesis``: how checkpoints make their waveforms, default :class:`SynthesisConfig`;
+    ``progress``: unused, the baselines here show none)."""
     if spec.startswith(CKPT_PREFIX):
         path = Path(spec[len(CKPT_PREFIX) :])
         if path.is_dir():
@@ -124,6 +125,33 @@ def load_method(spec: str, device: str = "cpu", synthesis: SynthesisConfig | Non
     if spec in BASELINES:
         return BASELINES[spec]
     raise ValueError(f"unknown method {spec!r}; expected one of {', '.join(method_names())}")
+
+
+# -- what ``avgs eval`` asks of a task's evaluation (avgs.tasks: Task.evaluation) -------------
+
+DEFAULT_METHODS = tuple(BASELINES)
+"Scored when no method is named."
+SPLITS = ("val", "train")
+"The clips this task scores."
+DEFAULT_SPLIT = "val"
+
+
+def check_request(data_roots: list[str], specs: list[str], split: str) -> None:
+    """ValueError, before any scene is read, for what this task cannot score."""
+    if len(data_roots) != 1:
+        raise ValueError(f"the binaural task takes one DATA_ROOT, got {len(data_roots)}: {' '.join(map(str, data_roots))}")
+    if split not in SPLITS:
+        raise ValueError(f"--split {split}: the binaural task scores val or train clips (heldout and both are --task rir)")
+
+
+def checkpoint_paths(specs: list[str]) -> list[str]:
+    """The checkpoint (or folder) paths that ``specs`` name."""
+    return [s[len(CKPT_PREFIX) :] for s in specs if s.startswith(CKPT_PREFIX)]
+
+
+def scenes(data_roots: list[str], ids: Iterable[str] | None = None) -> list[Path]:
+    """The scene folders to score (:func:`find_scenes` of the one data root)."""
+    return find_scenes(data_roots[0], ids)
 
 
 def find_scenes(data_root: str | Path, ids: Iterable[str] | None = None) -> list[Path]:

@@ -8,7 +8,7 @@ the RIR task (``SceneRenderer.predict_responses``, which ignores ``train``). A m
 define ``applies_to(scene) -> bool`` (a checkpoint applies to the scene it was trained on)
 and ``for_scene(scene)`` (a folder of checkpoints: the one for that scene).
 
-Per response, each metric is that of :mod:`avgs.evaluation.metrics` (DESIGN.md section 5), averaged
+Per response, each metric is that of :mod:`avgs.evaluation.metrics` (docs/design.md, "Metrics and baselines"), averaged
 over the two ears: ``t60_pct`` (``|T60_pred - T60_gt| / T60_gt x 100``, a failed
 measurement counting 100 %), ``c50_db`` (``|C50_pred - C50_gt|``), ``edt_s``
 (``|EDT_pred - EDT_gt|``). A scene's score is the mean over its responses of the split;
@@ -35,7 +35,8 @@ import torch
 from tqdm.auto import tqdm
 
 from avgs.evaluation import metrics
-from avgs.evaluation.binaural import CKPT_PREFIX, CheckpointMethod, CheckpointSetMethod, aggregate, format_report
+from avgs.evaluation.binaural import CKPT_PREFIX, CheckpointMethod, CheckpointSetMethod, aggregate
+from avgs.evaluation.binaural import format_report as format_table
 from avgs.evaluation.interpolation import RIR_BASELINES, CodecMethod
 
 if TYPE_CHECKING:
@@ -58,12 +59,9 @@ class ResponseCheckpointMethod(CheckpointMethod):
 
     def __init__(self, path: str | Path, device: str = "cpu", synthesis=None, batch: int = 64):
         super().__init__(path, device=device, synthesis=synthesis)
-        task = getattr(self.renderer, "task", "binaural")
-        if task != "rir":
-            raise ValueError(f"{self.path}: a checkpoint of the {task} task; the RIR task scores checkpoints trained "
-                             "on impulse responses (ckpt['task'] == 'rir')")
-        if not callable(getattr(self.renderer, "predict_responses", None)):
-            raise ValueError(f"{self.path}: this version of SceneRenderer cannot predict impulse responses")
+        if not self.renderer.source_aware:
+            raise ValueError(f"{self.path}: a checkpoint of the {self.renderer.task} task; the RIR task scores "
+                             "checkpoints trained on impulse responses ('avgs train --task rir')")
         self.batch = batch
 
     def __call__(self, train: "RIRSet", query: "RIRSet") -> np.ndarray:
@@ -89,8 +87,35 @@ def method_names() -> list[str]:
     return [*RIR_BASELINES, f"{CKPT_PREFIX}PATH", "avgs:PATH", f"{CKPT_PREFIX}DIR"]
 
 
-def load_method(spec: str, device: str = "cpu", progress: bool = False):
-    """A method of the RIR task from its command-line name."""
+# -- what ``avgs eval`` asks of a task's evaluation (avgs.tasks: Task.evaluation) -------------
+
+DEFAULT_METHODS = ("nearest", "linear", "opus-nearest", "opus-linear", "aac-nearest", "aac-linear")
+"The baselines (:data:`~avgs.evaluation.interpolation.RIR_BASELINES`), scored when no method is named."
+DEFAULT_SPLIT = "val"
+
+
+def check_request(data_roots: list[str], specs: list[str], split: str) -> None:
+    """ValueError, before any scene is read, for a method name or split this task does not know."""
+    for spec in specs:
+        if not spec.startswith(MODEL_PREFIXES) and spec not in RIR_BASELINES:
+            raise ValueError(f"unknown RIR method {spec!r}; expected one of {', '.join(method_names())}")
+    if split not in SPLITS:
+        raise ValueError(f"--split {split}: expected one of {', '.join(SPLITS)}")
+
+
+def checkpoint_paths(specs: list[str]) -> list[str]:
+    """The checkpoint (or folder) paths that ``specs`` name."""
+    return [s[len(p) :] for s in specs for p in MODEL_PREFIXES if s.startswith(p)]
+
+
+def scenes(data_roots: list[str], ids: Iterable[str] | None = None) -> list[Path]:
+    """The impulse-response scenes to score (:func:`find_scenes`)."""
+    return find_scenes(data_roots, ids)
+
+
+def load_method(spec: str, device: str = "cpu", synthesis=None, progress: bool = False):
+    """A method of the RIR task from its command-line name (``synthesis`` does not apply: a
+    checkpoint's render is the convolution with its predicted response)."""
     for prefix in MODEL_PREFIXES:
         if spec.startswith(prefix):
             path = Path(spec[len(prefix) :])
@@ -233,9 +258,9 @@ def evaluate(methods: dict, scene_dirs: Iterable[str | Path], split: str = "val"
     return reports[split]
 
 
-def format_rir_report(report: dict) -> str:
+def format_report(report: dict) -> str:
     """The table of :func:`avgs.evaluation.binaural.format_report` with T60 %, C50 dB and EDT s; one per split."""
     if "splits" in report:
-        return "\n\n".join(format_rir_report(r) for r in report["splits"].values())
-    return format_report(report, columns=COLUMNS, unit="responses")
+        return "\n\n".join(format_report(r) for r in report["splits"].values())
+    return format_table(report, columns=COLUMNS, unit="responses")
 

@@ -1,4 +1,4 @@
-"""Evaluation metrics with the exact conventions of the anchors (DESIGN.md §5).
+"""Evaluation metrics with the exact conventions of the anchors (docs/design.md, "Metrics and baselines").
 
 Binaural quality (RWAVS, AV-NeRF):
 

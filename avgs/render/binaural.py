@@ -97,16 +97,20 @@ class BinauralTaskModel:
     # -- sound -----------------------------------------------------------------------------
 
     def render(self, response: Response, x: np.ndarray, synthesis: SynthesisConfig, magnitudes: bool = False):
+        return self.synthesise(response.masks, x, synthesis, magnitudes, response.impulse)
+
+    def synthesise(self, m: Masks, x: np.ndarray, synthesis: SynthesisConfig, magnitudes: bool = False,
+                   impulse: np.ndarray | None = None):
         """(binaural [2, T] float32 of ``x`` (at unit peak), predicted magnitudes [2, F, N_t] or
-        None, the output's peak): the synthesis of one pose's masks."""
-        m = response.masks
+        None, the output's peak): the synthesis of one pose's masks ``m`` (``impulse``: their
+        response, when already made)."""
         m32 = m.to(torch.float32)
         y = np.empty((2, x.size), dtype=np.float32)  # [2, T]
         mags, top = None, 0.0
         mid = synthesis.method == "spectrogram" and synthesis.phase == "mid" and self.post_conv is None
         filtered = None  # [2, T] the input through the pose's filter, when the synthesis uses it
         if self.post_conv is None and (synthesis.method == "filter" or synthesis.phase == "filter"):
-            h = self.impulse(m) if response.impulse is None else response.impulse
+            h = self.impulse(m) if impulse is None else impulse
             filtered = convolve(torch.from_numpy(x), torch.from_numpy(h))
         if synthesis.method == "filter" and filtered is not None:
             y[:] = filtered.numpy()
@@ -216,6 +220,12 @@ class BinauralTaskModel:
             return MidPhaseStream(m, self.stft, s, **({} if block_frames is None else {"block_frames": block_frames}))
         impulse = self.impulse(m) if response.impulse is None else response.impulse
         return ConvolutionStream(impulse) if s.method == "filter" else BinauralStream(m.to(torch.float32), impulse, self.stft)
+
+    def beyond_filter(self, synthesis: SynthesisConfig) -> bool:
+        """The mid phase (the default) or the filter's phase without iterations, on the mask model."""
+        s = synthesis
+        return (self.post_conv is None and s.method == "spectrogram"
+                and (s.phase == "mid" or (s.phase == "filter" and s.iterations == 0)))
 
     def move_stream(self, stream, response: Response) -> None:
         stream.set_pose(response.masks.to(torch.float32), response.impulse)

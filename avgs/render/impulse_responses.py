@@ -84,6 +84,9 @@ class ImpulseResponseTaskModel:
         """The input convolved with the response, whatever the synthesis."""
         return ConvolutionStream(response.impulse)
 
+    def beyond_filter(self, synthesis: SynthesisConfig) -> bool:
+        return False  # the render is the convolution with the response, whatever the synthesis
+
     def move_stream(self, stream, response: Response) -> None:
         stream.set_pose(None, response.impulse)
 

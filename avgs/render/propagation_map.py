@@ -74,8 +74,7 @@ import numpy as np
 import torch
 
 from avgs.data.frame import signed_direction
-from avgs.render.cells import (LEVEL_FLOOR_DB, PEAK_MARGIN, FastMap, bin_subset, ear_power, frame_interpolation,  # noqa: F401
-                               frame_nodes, listener_contexts, pose_levels, power_levels)
+from avgs.render.cells import PEAK_MARGIN, FastMap, bin_subset, power_levels
 from avgs.render.tasks import HEADROOM_DB
 
 KINDS = ("level", "ild")

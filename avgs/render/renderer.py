@@ -251,6 +251,14 @@ class SceneRenderer:
         """B's time-frequency conv head (``--post-conv``), or None."""
         return self.model.binauralizer.post_conv
 
+    @property
+    def renders_beyond_filter(self) -> bool:
+        """Whether :meth:`render` (with :attr:`synthesis`) differs from the pose's filter
+        (:meth:`binaural_filter`) and streams: the binaural task's mid phase (the default) or
+        filter's phase without iterations; never for a model of responses, whose render is the
+        convolution with its response."""
+        return self.task_model.beyond_filter(self.synthesis)
+
     # -- poses ------------------------------------------------------------------------
 
     def inside(self, position, what: str = "listener") -> np.ndarray:

@@ -82,6 +82,10 @@ class TaskModel(Protocol):
     def stream(self, response: Response, synthesis: SynthesisConfig, block_frames: int | None):
         """A block stream of this response (``process``, ``flush``, ``set_pose``, ``latency``)."""
 
+    def beyond_filter(self, synthesis: SynthesisConfig) -> bool:
+        """Whether a render with ``synthesis`` differs from the pose's filter and still streams (so
+        that the explorer, which plays the filter while a pose moves, renders a settled pose anew)."""
+
     def move_stream(self, stream, response: Response) -> None:
         """Switch ``stream`` to ``response`` from its next block."""
 

@@ -21,13 +21,13 @@ import copy
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from avgs.acoustics.model import AVGSModel
 from avgs.acoustics.points import AudioPoints
-from avgs.io.checkpoint import build_checkpoint, config_of, load_checkpoint, outline_from_metadata, save_checkpoint
 from avgs.config import TrainConfig
+from avgs.data.scene_geometry import outline_from_metadata
+from avgs.io.checkpoint import build_checkpoint, config_of, load_checkpoint, save_checkpoint
+from avgs.tasks import BINAURAL, DEFAULT, Task, task_named, task_of
 from avgs.train.logging import JsonLinesLog, log_paths, plot_curves
 from avgs.train.stage1 import (
     audio_points_from,
@@ -41,20 +41,7 @@ from avgs.train.stage1 import (
     stage1_path,
     train_stage1,
 )
-from avgs.train.stage2 import Stage2Trainer
-
-
-def quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
-    """The ``--quick`` preset: a tiny run for tests and smoke checks (small images, few iterations)."""
-    cfg = copy.deepcopy(cfg or TrainConfig())
-    g, a, p = cfg.gaussians, cfg.acoustic, cfg.points
-    g.iterations, g.init_points, g.image_downscale = 30, 1500, 4
-    g.densify_from, g.densify_every, g.sh_degree_interval = 10, 10, 10
-    g.max_gaussians = 4000
-    a.iterations, a.batch_size = 300, 4
-    p.densify_every, p.prune_every, p.max_points = 50, 150, 4000
-    cfg.checkpoint_every, cfg.eval_every, cfg.log_every = 100, 150, 10
-    return cfg
+from avgs.train.tasks import TaskTraining, quick_config  # noqa: F401 (the --quick preset, imported from here too)
 
 
 def _stage1(scene, cfg: TrainConfig, log: JsonLinesLog, progress: bool, cache: Path, given: Path | None):
@@ -139,13 +126,13 @@ def _train_stage1_logged(scene_dir: Path, cfg: TrainConfig, progress: bool, sink
     return gaussians, stats, history
 
 
-def resume_from(out: Path, cfg: TrainConfig, log_path: Path, task: str = "binaural"):
+def resume_from(out: Path, cfg: TrainConfig, log_path: Path, task: Task = BINAURAL):
     """What ``--resume`` continues from the checkpoint ``out`` of ``task``: (the checkpoint, its
     stored configuration with this run's iterations, intervals and device, its log continued,
     its audio points, its G or None). ValueError when ``out`` holds no training state of ``task``."""
     resumed = load_checkpoint(out)
-    if resumed.get("train_state") is None or resumed.get("task", "binaural") != task:
-        what = "training" if task == "binaural" else f"{task.upper()} training"
+    if resumed.get("train_state") is None or task_of(resumed) is not task:
+        what = "training" if task is BINAURAL else f"{task.name.upper()} training"
         raise ValueError(f"{out}: holds no {what} state to resume from")
     stored = config_of(resumed)
     stored.acoustic.iterations = cfg.acoustic.iterations
@@ -156,53 +143,46 @@ def resume_from(out: Path, cfg: TrainConfig, log_path: Path, task: str = "binaur
             resumed.get("gaussians"))
 
 
-def _bounds_world(scene, X: torch.Tensor, gaussians: dict | None) -> np.ndarray:
-    """Box [2, 3] (world) around the audio points, G, the listener poses and the source."""
-    parts = [X.detach().cpu().numpy().reshape(-1, 3), scene.source[None]]
-    parts += [np.stack([c.listener for c in clips]) for clips in (scene.train, scene.val) if clips]
-    if gaussians is not None and "means" in gaussians:
-        parts.append(gaussians["means"].detach().cpu().numpy().reshape(-1, 3))
-    pts = scene.frame.to_world(np.concatenate(parts).astype(np.float64))
-    return np.stack([pts.min(0), pts.max(0)])
-
-
 def train_scene(
     scene_dir: str | Path,
     out: str | Path,
     cfg: TrainConfig | None = None,
     *,
+    task: str = DEFAULT,
     resume: bool = False,
     progress: bool = True,
     initial_points: AudioPoints | None = None,
     stage1: str | Path | None = None,
 ) -> dict:
-    """Train AV-GS on one scene and write ``out``; returns the final log record (with val MAG/ENV).
+    """Train AV-GS for ``task`` (:mod:`avgs.tasks`) on one scene and write ``out``; returns the
+    final log record (the task's validation scores and final metrics).
 
-    ``initial_points`` (normalised frame) skips stage 1: G_a starts from them and no G is
-    stored (for experiments on given geometry, and for tests that exercise stage 2 alone).
-    ``stage1`` names a stage-1 file (:mod:`avgs.train.stage1`) to take G from; without it,
-    ``<out>.stage1.pt`` is reused when it matches the scene and settings, else written.
+    The task's hooks (:class:`~avgs.train.tasks.TaskTraining`) open the scene's targets and
+    make its trainer; everything else is this one loop. ``initial_points`` (normalised frame)
+    skips stage 1: G_a starts from them and no G is stored (for experiments on given
+    geometry, and for tests that exercise stage 2 alone). ``stage1`` names a stage-1 file
+    (:mod:`avgs.train.stage1`) to take G from; without it, ``<out>.stage1.pt`` is reused when
+    it matches the scene and settings, else written.
 
     With ``resume`` and an existing ``out``, the model, optimizer and random state come from
     it and training continues from its iteration up to ``cfg.acoustic.iterations``.
     """
     from tqdm.auto import tqdm
 
-    from avgs.data.rwavs import RWAVSScene
-
+    kind = task_named(task, "task")
     cfg = copy.deepcopy(cfg or TrainConfig())
     out = Path(out)
     log_path, png_path = log_paths(out)
-    scene = RWAVSScene(scene_dir, cfg.stft)
-    if not scene.train:
-        raise ValueError(f"{scene.root}: no training clips")
+    hooks: TaskTraining = kind.part("training")(scene_dir, cfg)
+    scene = hooks.scene
     torch.manual_seed(cfg.seed)
 
     resumed = None
     if resume and out.is_file():
-        resumed, cfg, log, points, gaussians = resume_from(out, cfg, log_path)
+        resumed, cfg, log, points, gaussians = resume_from(out, cfg, log_path, kind)
     else:
         log = JsonLinesLog(log_path)
+        hooks.configure(cfg, log)
         t0 = time.perf_counter()
         if initial_points is not None:
             points, gaussians = initial_points, None
@@ -211,7 +191,7 @@ def train_scene(
         log.write({"stage": "stage1", "event": "done", "seconds": time.perf_counter() - t0, "points": points.num_points})
 
     torch.manual_seed(cfg.seed)
-    model = AVGSModel(points, cfg.acoustic, cfg.stft)
+    model = kind.part("model").build(points, cfg, cfg.stft)
     if resumed is not None:
         try:
             if model.field is not None:
@@ -219,55 +199,46 @@ def train_scene(
             model.binauralizer.load_state_dict(resumed["binauralizer"])
         except RuntimeError as exc:  # load_checkpoint compared the shapes already; this is the last guard
             raise ValueError(f"{out}: its network weights do not fit its configuration ({str(exc).splitlines()[0]})") from None
-    trainer = Stage2Trainer(model, scene.dataset("train", cfg.stft), cfg, cfg.device)
+    trainer = hooks.trainer(model, cfg, resumed is not None)
     if resumed is not None:
         try:
             trainer.load_state_dict(resumed["train_state"])
         except ValueError as exc:
             raise ValueError(f"{out}: cannot resume from its training state: {exc}") from None
         log.write({"stage": "resume", "iteration": trainer.iteration, "file": str(out)})
-    val = scene.dataset("val", cfg.stft) if scene.val else None
     outline = outline_from_metadata(scene.metadata)
 
     def save(metrics: dict | None = None) -> None:
+        extra = hooks.checkpoint_extra(metrics)
         ckpt = build_checkpoint(
-            model,
-            scene.frame,
-            scene.source,
-            cfg,
-            history=log.records,
-            gaussians=gaussians,
-            name=scene.name,
-            bounds_world=_bounds_world(scene, model.points.X, gaussians),
-            outline_world=outline,
-            stft=cfg.stft,
-            extra={"train_state": trainer.state_dict(), "metrics": dict(metrics or {})},
+            model, scene.frame, scene.source, cfg, history=log.records, gaussians=gaussians, name=scene.name,
+            bounds_world=hooks.bounds(model, gaussians), outline_world=outline, stft=cfg.stft,
+            extra={"task": kind.name, **extra, "train_state": trainer.state_dict()},
         )
         save_checkpoint(ckpt, out)
 
     total = cfg.acoustic.iterations
     final: dict = {}
-    bar = tqdm(total=total, initial=trainer.iteration, desc="stage 2 (audio)", disable=not progress, dynamic_ncols=True)
+    bar = tqdm(total=total, initial=trainer.iteration, desc=hooks.label, disable=not progress, dynamic_ncols=True)
     t0 = time.perf_counter()
     while trainer.iteration < total:
         rec = trainer.step()
         it = trainer.iteration
         bar.update(1)
         record = {"stage": "stage2", "iteration": it, **rec}
-        if val is not None and (it % cfg.eval_every == 0 or it == total):
-            record.update(trainer.evaluate(val))
-            bar.set_postfix(loss=f"{rec['loss']:.4f}", mag=f"{record['val_mag']:.3f}", points=rec["points"])
-        if it % cfg.log_every == 0 or it == total or rec["added"] or rec["removed"] or "val_mag" in record:
+        scores = hooks.validate(trainer) if it % cfg.eval_every == 0 or it == total else {}
+        if scores:
+            record.update(scores)
+            first = hooks.scores[0]
+            bar.set_postfix({"loss": f"{rec['loss']:.4f}", first: f"{record[first]:.3f}", "points": rec["points"]})
+        if it % cfg.log_every == 0 or it == total or rec["added"] or rec["removed"] or scores:
             log.write({**record, "seconds": time.perf_counter() - t0})
         if it == total:
-            final = {k: record[k] for k in ("iteration", "loss", "points", "val_mag", "val_env") if k in record}
+            final = {k: record[k] for k in ("iteration", "loss", "points", *hooks.scores) if k in record}
         elif it % cfg.checkpoint_every == 0:
             save()
     bar.close()
-    if not final:  # resumed at or past the end: evaluate what there is
-        final = {"iteration": trainer.iteration, "points": model.points.num_points}
-        if val is not None:
-            final.update(trainer.evaluate(val))
+    final = hooks.final(trainer, final)
     log.write({"stage": "final", **final})
     save(final)
     plot_curves(log.records, png_path)

@@ -117,7 +117,7 @@ def initial_points(
     source = stage1_init_source(metadata, cfg)
     rng = np.random.default_rng(cfg.seed)
     if source == "scene.json":
-        from avgs.data.synth.geometry import surface_points
+        from avgs.data.scene_geometry import surface_points
 
         return surface_points(metadata, cfg.gaussians.init_points, rng)
     if source == "random":

@@ -147,7 +147,7 @@ class Stage2Trainer:
         return torch.cat(out)
 
     def evaluate(self, data) -> dict:
-        """Validation MAG and ENV (DESIGN.md §5, :mod:`avgs.evaluation.metrics`), mean over clips."""
+        """Validation MAG and ENV (docs/design.md, "Metrics and baselines"; :mod:`avgs.evaluation.metrics`), mean over clips."""
         from avgs.evaluation.metrics import env, mag
 
         pred = self.predict(data).numpy()  # [C, 2, T]

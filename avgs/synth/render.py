@@ -16,8 +16,8 @@ import math
 
 import numpy as np
 
-from avgs.data.synth.materials import SKY_COLOR, SOURCE_COLOR, material_info
-from avgs.data.synth.presets import SceneSpec, Surface
+from avgs.synth.materials import SKY_COLOR, SOURCE_COLOR, material_info
+from avgs.synth.presets import SceneSpec, Surface
 
 LIGHT = np.array([0.35, 0.55, 0.76]) / np.linalg.norm([0.35, 0.55, 0.76])
 TILE = 0.25

@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from avgs.config import STFT
-from avgs.data.synth.materials import pra_material
-from avgs.data.synth.presets import SceneSpec
+from avgs.synth.materials import pra_material
+from avgs.synth.presets import SceneSpec
 
 SAMPLE_RATE = STFT.sample_rate
 RT60_BANDS_HZ = (125, 250, 500, 1000, 2000, 4000)
@@ -97,7 +97,7 @@ def ear_directivities(sample_rate: int = SAMPLE_RATE, equalised: bool = True) ->
         if key not in _HEAD:
             from pyroomacoustics.directivities import MeasuredDirectivityFile, Rotation3D
 
-            from avgs.data.synth.hrtf import pra_file_reader
+            from avgs.synth.hrtf import pra_file_reader
 
             reader = pra_file_reader(sample_rate, equalised)
             hrtf = MeasuredDirectivityFile("mit_kemar_normal_pinna", fs=sample_rate, file_reader_callback=reader)
@@ -212,7 +212,7 @@ def emission_delay(settings: SimSettings) -> int:
     ``distance / c`` (the ears of a lateral source lead or lag by the interaural delay)."""
     from pyroomacoustics.parameters import constants
 
-    from avgs.data.synth.hrtf import frontal_delay
+    from avgs.synth.hrtf import frontal_delay
 
     return int(constants.get("frac_delay_length")) // 2 + frontal_delay(settings.sample_rate, settings.hrtf_equalised)
 

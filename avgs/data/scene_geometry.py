@@ -1,4 +1,5 @@
-"""Points on a written scene's surfaces, for initialising Gaussians and audio points.
+"""A scene's geometry from its scene.json: points on its surfaces (for initialising Gaussians and
+audio points) and the room outline's edges (for drawing).
 
 Reads only the scene.json dict (``metadata["surfaces"]``: ``{"name", "material",
 "color", "corners": [[x, y, z], ...]}`` in metres, and ``metadata["to_normalised"]``),
@@ -66,3 +67,42 @@ def surface_points(metadata: dict, n: int, rng: np.random.Generator) -> tuple[np
     t = tris[pick]  # [n, 3, 3]
     world = t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0])  # [n, 3]
     return frame.to_normalised(world).astype(np.float32), tri_colors[pick].astype(np.float32)
+
+
+# -- the room outline ------------------------------------------------------------------
+
+_POLYGON_KEYS = ("corners", "vertices", "points", "polygon", "quad")
+
+
+def outline_from_metadata(metadata: dict | None) -> np.ndarray | None:
+    """Edges ``[K, 2, 3]`` (world, metres) of the room surfaces listed in scene.json, or None.
+
+    Reads ``metadata["surfaces"]``: a list whose items are polygons (a list of [x, y, z]
+    corners) or dicts holding one under ``corners`` / ``vertices`` / ``points`` /
+    ``polygon`` / ``quad``. Each closed polygon contributes its edges; edges shared by
+    two surfaces are kept once.
+    """
+    if not isinstance(metadata, dict):
+        return None
+    surfaces = metadata.get("surfaces")
+    if surfaces is None and isinstance(metadata.get("room"), dict):
+        surfaces = metadata["room"].get("surfaces")
+    if not isinstance(surfaces, (list, tuple)):
+        return None
+    segments: dict[tuple, np.ndarray] = {}
+    for s in surfaces:
+        poly = s
+        if isinstance(s, dict):
+            poly = next((s[k] for k in _POLYGON_KEYS if k in s), None)
+        try:
+            corners = np.asarray(poly, dtype=np.float64)
+        except (TypeError, ValueError):
+            continue
+        if corners.ndim != 2 or corners.shape[1] != 3 or len(corners) < 2 or not np.all(np.isfinite(corners)):
+            continue
+        for a, b in zip(corners, np.roll(corners, -1, axis=0)):
+            key = tuple(sorted((tuple(np.round(a, 6)), tuple(np.round(b, 6)))))
+            segments.setdefault(key, np.stack([a, b]))
+    if not segments:
+        return None
+    return np.stack(list(segments.values()))  # [K, 2, 3]

@@ -36,7 +36,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from avgs.data.synth.materials import material_info
+from avgs.synth.materials import material_info
 
 PRESETS = ("office", "house", "apartment", "outdoor")
 "The binaural (RWAVS-like) presets."

@@ -34,10 +34,10 @@ import numpy as np
 
 from avgs.config import STFT
 from avgs.data.rir import FORMAT, INDEX_FILE, RIR_DIR, rir_file_name
-from avgs.data.synth.grid import SPLITS, GridConfig, RIRGrid, make_grid
-from avgs.data.synth.presets import PRESETS, RIR_PRESETS, SceneSpec, make_spec
-from avgs.data.synth.simulate import SimSettings, ear_directivities, emission_delay, receiver_rirs, speed_of_sound
-from avgs.data.synth.writer import SynthConfig, SynthResult, run_jobs, write_scene
+from avgs.synth.grid import SPLITS, GridConfig, RIRGrid, make_grid
+from avgs.synth.presets import PRESETS, RIR_PRESETS, SceneSpec, make_spec
+from avgs.synth.simulate import SimSettings, ear_directivities, emission_delay, receiver_rirs, speed_of_sound
+from avgs.synth.writer import SynthConfig, SynthResult, run_jobs, write_scene
 
 ORIENTATIONS_DEG = (0, 90, 180, 270)
 

@@ -1,4 +1,4 @@
-"""Write one synthetic scene in the RWAVS layout (DESIGN.md §2), atomically.
+"""Write one synthetic scene in the RWAVS layout (docs/design.md, "Data layout (RWAVS)"), atomically.
 
 ::
 
@@ -36,11 +36,11 @@ from pathlib import Path
 import numpy as np
 
 from avgs.io.atomic import write_text
-from avgs.data.synth import GENERATOR_VERSION
-from avgs.data.synth.materials import material_record
-from avgs.data.synth.poses import Pose, sample_poses
-from avgs.data.synth.presets import ALL_PRESETS, SceneSpec, make_spec
-from avgs.data.synth.simulate import SimSettings, binaural_rirs, ear_directivities, rt60_summary
+from avgs.synth import GENERATOR_VERSION
+from avgs.synth.materials import material_record
+from avgs.synth.poses import Pose, sample_poses
+from avgs.synth.presets import ALL_PRESETS, SceneSpec, make_spec
+from avgs.synth.simulate import SimSettings, binaural_rirs, ear_directivities, rt60_summary
 
 BINAURAL_FILE = "binaural_syn_re.wav"
 SOURCE_FILE = "source_syn_re.wav"
@@ -295,8 +295,8 @@ def write_scene(
     from scipy.io import wavfile
 
     from avgs.data.frame import SceneFrame
-    from avgs.data.synth.render import FrameRenderer, focal_length_px
-    from avgs.data.synth.signals import scene_source
+    from avgs.synth.render import FrameRenderer, focal_length_px
+    from avgs.synth.signals import scene_source
 
     t_start = time.perf_counter()
     check_scene_id(scene_id)
@@ -401,7 +401,7 @@ def _scene_json(spec, cfg, settings, frame, n_train, n_val, rt60, poses) -> dict
     surfaces = spec.surfaces()
     materials = sorted({s.material for s in surfaces})
     return {
-        "generator": {"name": "avgs.data.synth", "version": GENERATOR_VERSION},
+        "generator": {"name": "avgs.synth", "version": GENERATOR_VERSION},
         "preset": spec.preset,
         "environment": spec.environment,
         "seed": cfg.seed,

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from avgs.data.synth.presets import SceneSpec
+from avgs.synth.presets import SceneSpec
 
 
 @dataclass(frozen=True)

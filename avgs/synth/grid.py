@@ -4,7 +4,7 @@ Receivers stand on a regular grid (``receiver_spacing`` metres, cells centred at
 ``lo + (k + 1/2) spacing`` of the room's box) at the listener's ear height; sources on a
 coarser one (``source_spacing``) at ``source_height``. With ``source_spacing = 2 x
 receiver_spacing`` (the defaults) every source sits in the middle of four receivers, never on
-one. Both keep to the walkable area (:func:`avgs.data.synth.poses.is_walkable`: inside the
+one. Both keep to the walkable area (:func:`avgs.synth.poses.is_walkable`: inside the
 room, clear of walls, partitions and furniture). Source 0 is the one nearest the preset's own
 source (the binaural task's source), and is always a training source.
 
@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from avgs.data.synth.poses import is_walkable
-from avgs.data.synth.presets import SceneSpec
+from avgs.synth.poses import is_walkable
+from avgs.synth.presets import SceneSpec
 
 SPLITS = ("train", "val", "heldout")
 

@@ -1,0 +1,259 @@
+"""The impulse-response task's training hooks (``avgs train SCENE --task rir``,
+:class:`ImpulseResponseTraining`, driven by the one loop of :mod:`avgs.train.pipeline`).
+
+An RIR scene (``DATA_ROOT/<scene>/rir/``, :mod:`avgs.data.rir`) is also an RWAVS scene, so G_a
+comes from stage 1 exactly as for the binaural task (``--init sfm`` takes scene.json's
+surfaces and skips training G); its binaural clips are not read. Then G_a, F and the RIR network
+(:class:`~avgs.acoustics.rir_model.RIRModel`) train on the log magnitudes of the training
+responses (the STFT of each response, per ear, floored ``RIRConfig.floor_db`` below the
+loudest training bin; no per-response normalisation, so level falls with distance):
+
+    L = (1 - lambda_a) [MSE(log |S_pred|, log |S_gt|) + w_e L_energy + w_d L_decay] + lambda_a L_v
+
+(L_energy: each ear's energy per bin and the ears' difference; L_decay: the energy decay
+curves, :mod:`avgs.train.losses`; L_v: the vicinity points' prior, stage 2's)
+
+with stage 2's optimiser groups, schedule, audio-aware point management and exact resume
+(:class:`RIRTrainer` is a :class:`~avgs.train.stage2.Stage2Trainer` with another batch and
+loss). Every ``eval_every`` iterations the log-magnitude RMSE on val (``val_logmag``) is
+logged beside that of the training responses' mean (``val_logmag_mean``: predicting the mean
+response); at the end T60 / C50 / EDT errors (:mod:`avgs.evaluation.metrics`) of the waveforms on val
+and heldout, for each phase reconstruction (:func:`~avgs.acoustics.rir_model.response_waveform`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from avgs import dsp
+from avgs.acoustics.rir_model import RIRModel, response_waveform
+from avgs.config import TrainConfig
+from avgs.data.rir import RIRScene
+from avgs.data.rwavs import RWAVSScene
+from avgs.train.logging import JsonLinesLog
+from avgs.train.losses import band_masks, decay_loss, energy_loss
+from avgs.train.stage2 import Stage2Trainer
+
+PHASES = {"noise": ("noise", 0), "griffin-lim 4": ("griffin-lim", 4), "griffin-lim 16": ("griffin-lim", 16)}
+"Phase reconstructions compared at the end of training (T60 / C50 / EDT on val)."
+
+
+def rir_quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
+    """The ``--quick`` preset of the RIR task: few iterations, a narrower network, stage 1 skipped (``init sfm``)."""
+    from avgs.train.pipeline import quick_config
+
+    cfg = quick_config(cfg)
+    cfg.init = "sfm"
+    cfg.store_gaussians = False
+    cfg.acoustic.iterations, cfg.acoustic.batch_size = 300, 8
+    cfg.acoustic.lr = 1e-3
+    cfg.gaussians.init_points = 1500
+    cfg.rir.width = 128
+    cfg.rir.eval_responses = 16
+    return cfg
+
+
+@dataclass(frozen=True)
+class RIRData:
+    """One split's responses as the trainer uses them (normalised positions, radians)."""
+
+    listener: torch.Tensor  # [M, 3] float32
+    source: torch.Tensor  # [M, 3] float32
+    yaw: torch.Tensor  # [M] float32 radians
+    log_mag: torch.Tensor  # [M, 2, F, N] float32, floored
+    rir: np.ndarray  # [M, 2, L] float32, the responses themselves (for T60 / C50 / EDT)
+
+    def __len__(self) -> int:
+        return int(self.listener.shape[0])
+
+
+def envelope_magnitude(rir, stft, smooth_bins: int = 1) -> torch.Tensor:
+    """STFT magnitudes [..., F, N] of responses [..., L], their power averaged over ``smooth_bins``
+    neighbouring bins (a centred box, shorter at the edges): the spectral envelope. The box keeps
+    each frame's energy, so the level is unchanged."""
+    power = dsp.magnitude(torch.as_tensor(np.asarray(rir, dtype=np.float32)), stft).square()  # [..., F, N]
+    if smooth_bins > 1:
+        lead, (F, N) = power.shape[:-2], power.shape[-2:]
+        flat = power.reshape(-1, F, N).transpose(1, 2).reshape(-1, 1, F)  # [M N, 1, F]
+        half = smooth_bins // 2
+        kernel = torch.ones(1, 1, 2 * half + 1, dtype=power.dtype)
+        total = torch.nn.functional.conv1d(flat, kernel, padding=half)
+        count = torch.nn.functional.conv1d(torch.ones_like(flat[:1]), kernel, padding=half)
+        power = (total / count).reshape(-1, N, F).transpose(1, 2).reshape(*lead, F, N)
+    return power.sqrt()
+
+
+def floored_log_magnitude(rir, log_floor: float, stft, smooth_bins: int = 1) -> torch.Tensor:
+    """``log(max(envelope |STFT(rir)|, e^log_floor))``: responses [..., L] -> [..., F, N] float32."""
+    return torch.log(envelope_magnitude(rir, stft, smooth_bins).clamp_min(math.exp(log_floor))).float()
+
+
+def rir_data(responses, log_floor: float, stft, smooth_bins: int = 1) -> RIRData:
+    """:class:`RIRData` of an ``avgs.data.rir.RIRSet``."""
+    return RIRData(
+        listener=torch.as_tensor(np.asarray(responses.receiver), dtype=torch.float32),
+        source=torch.as_tensor(np.asarray(responses.source), dtype=torch.float32),
+        yaw=torch.as_tensor(np.radians(np.asarray(responses.yaw, dtype=np.float64)), dtype=torch.float32),
+        log_mag=floored_log_magnitude(responses.rir, log_floor, stft, smooth_bins),
+        rir=np.asarray(responses.rir, dtype=np.float32),
+    )
+
+
+class RIRTrainer(Stage2Trainer):
+    """Stage 2 for the RIR task: one optimisation step at a time; resumable through ``state_dict``."""
+
+    name = "RIR training"
+
+    def __init__(self, model: RIRModel, train_data: RIRData, cfg: TrainConfig, device: str | torch.device = "cpu"):
+        self._init_optimisation(model, train_data, cfg, device)
+        self._batch = {k: getattr(train_data, k).to(self.device) for k in ("listener", "source", "yaw", "log_mag")}
+        self._bands = band_masks(cfg.stft.n_freq, cfg.stft.sample_rate).to(self.device)  # [K, F]
+
+    def step(self) -> dict:
+        """One iteration on a random batch of responses; returns the losses and point bookkeeping."""
+        idx = self._begin_step()
+        b = {k: v[idx] for k, v in self._batch.items()}
+        pred, lis_idx, src_idx = self.model(b["listener"], b["yaw"], b["source"])  # [B, 2, F, N]
+        loss_m = torch.nn.functional.mse_loss(pred, b["log_mag"])
+        if self.cfg.rir.energy_weight > 0:
+            loss_m = loss_m + self.cfg.rir.energy_weight * energy_loss(pred, b["log_mag"])
+        if self.cfg.rir.decay_weight > 0:
+            floor = float(self.model.binauralizer.log_floor)
+            loss_m = loss_m + self.cfg.rir.decay_weight * decay_loss(pred, b["log_mag"], self._bands, floor)
+        return self._update(loss_m, lis_idx, src_idx)
+
+    @torch.no_grad()
+    def predict(self, data: RIRData, chunk: int = 16) -> torch.Tensor:
+        """Predicted log magnitudes [M, 2, F, N] of every response of ``data``."""
+        self.model.eval()
+        cache = self.model.precompute()
+        out = [self.model.log_magnitudes(data.listener[i : i + chunk].to(self.device), data.yaw[i : i + chunk].to(self.device),
+                                         data.source[i : i + chunk].to(self.device), cache)[0].cpu()
+               for i in range(0, len(data), chunk)]
+        return torch.cat(out)
+
+    def evaluate(self, data: RIRData, prefix: str = "val") -> dict:
+        """RMSE of the log magnitudes, the model's and the mean response's."""
+        pred = self.predict(data)
+        mean = self.model.binauralizer.mean.detach().cpu()
+        return {f"{prefix}_logmag": float(torch.sqrt(torch.mean((pred - data.log_mag) ** 2))),
+                f"{prefix}_logmag_mean": float(torch.sqrt(torch.mean((mean[None] - data.log_mag) ** 2)))}
+
+    def room_metrics(self, data: RIRData, prefix: str, limit: int, phases=PHASES) -> dict:
+        """T60 % / C50 dB / EDT s errors of the predicted waveforms on at most ``limit`` responses of
+        ``data`` (evenly spaced), for each phase reconstruction; ``{prefix}_{metric}`` for the configured one."""
+        from avgs.evaluation.metrics import c50_error, edt_error, t60_error
+
+        if len(data) == 0 or limit < 1:
+            return {}
+        pick = np.unique(np.linspace(0, len(data) - 1, min(limit, len(data))).round().astype(int))
+        sub = RIRData(data.listener[pick], data.source[pick], data.yaw[pick], data.log_mag[pick], data.rir[pick])
+        mags = self.model.magnitudes(self.predict(sub))  # [M, 2, F, N]
+        fs, length = self.cfg.stft.sample_rate, sub.rir.shape[-1]
+        out: dict = {}
+        rc = self.cfg.rir
+        chosen = next((label for label, (ph, it) in phases.items() if ph == rc.phase and (ph == "noise" or it == rc.phase_iterations)), None)
+        todo = dict(phases)
+        if chosen is None:
+            chosen = f"{rc.phase} {rc.phase_iterations}"
+            todo[chosen] = (rc.phase, rc.phase_iterations)
+        for label, (phase, its) in todo.items():
+            wave = response_waveform(mags, length, self.cfg.stft, phase, its).numpy()  # [M, 2, L]
+            errs = np.array([[t60_error(p, g, fs), c50_error(p, g, fs), edt_error(p, g, fs)] for p, g in zip(wave, sub.rir)])
+            key = f"{prefix}_phase_{label.replace(' ', '_')}"
+            out[key] = {"t60": float(errs[:, 0].mean()), "c50": float(errs[:, 1].mean()), "edt": float(errs[:, 2].mean())}
+            if label == chosen:
+                out.update({f"{prefix}_t60": out[key]["t60"], f"{prefix}_c50": out[key]["c50"], f"{prefix}_edt": out[key]["edt"]})
+        return out
+
+
+SPEED_OF_SOUND = 343.0
+"m/s, when the scene does not say which speed its simulator used."
+
+
+def speed_of_sound(rir_scene) -> float:
+    """The speed of sound (world units per second) of the scene's responses: scene.json's
+    ``rir.speed_of_sound`` when it is there, else :data:`SPEED_OF_SOUND` (world units are metres)."""
+    meta = getattr(rir_scene, "metadata", None)
+    value = (meta or {}).get("rir", {}).get("speed_of_sound") if isinstance(meta, dict) else None
+    return float(value) if isinstance(value, (int, float)) and math.isfinite(value) and value > 0 else SPEED_OF_SOUND
+
+
+class ImpulseResponseTraining:
+    """:class:`~avgs.train.tasks.TaskTraining` of the impulse-response task."""
+
+    label = "RIR training"
+    scores = ("val_logmag", "val_logmag_mean")
+    quick_config = staticmethod(rir_quick_config)
+
+    def __init__(self, scene_dir, cfg: TrainConfig):
+        self.scene = RWAVSScene(scene_dir, cfg.stft, audio=False)  # frame, source, metadata, frames for stage 1
+        self.responses = RIRScene(scene_dir)
+        if int(self.responses.sample_rate) != cfg.stft.sample_rate:
+            raise ValueError(f"{self.responses.scene_dir}: responses at {self.responses.sample_rate} Hz, "
+                             f"the model runs at {cfg.stft.sample_rate} Hz")
+        self.train_set = self.responses.responses("train")
+        if len(self.train_set) == 0:
+            raise ValueError(f"{self.responses.scene_dir}: no training responses")
+        self.evals: dict[str, RIRData] = {}
+
+    def configure(self, cfg: TrainConfig, log: JsonLinesLog) -> None:
+        """A fresh run: the responses' length and frames, and the speed of sound, into ``cfg.rir``."""
+        cfg.rir.length = int(self.responses.length)
+        cfg.rir.frames = dsp.n_frames(cfg.rir.length, cfg.stft)
+        cfg.rir.sound_speed = speed_of_sound(self.responses) * self.scene.frame.scale  # normalised units per second
+        log.write({"stage": "rir", "event": "task", "task": "rir", "responses": len(self.train_set), "length": cfg.rir.length})
+
+    def trainer(self, model: RIRModel, cfg: TrainConfig, resumed: bool) -> RIRTrainer:
+        """The trainer on the training responses; a fresh model's floor, mean response and mean
+        log distance set from them (a resumed one keeps its own)."""
+        if int(self.responses.length) != cfg.rir.length:
+            raise ValueError(f"{self.responses.scene_dir}: responses of {self.responses.length} samples, "
+                             f"the checkpoint's of {cfg.rir.length}")
+        if resumed:
+            log_floor = float(model.binauralizer.log_floor)
+        else:
+            peak = float(dsp.magnitude(torch.as_tensor(self.train_set.rir), cfg.stft).max())
+            if not (math.isfinite(peak) and peak > 0):
+                raise ValueError(f"{self.responses.scene_dir}: the training responses are silent or not finite")
+            log_floor = math.log(peak) + cfg.rir.floor_db / 20.0 * math.log(10.0)
+        train = rir_data(self.train_set, log_floor, cfg.stft, cfg.rir.smooth_bins)
+        if not resumed:
+            with torch.no_grad():
+                model.binauralizer.log_floor.fill_(log_floor)
+                model.binauralizer.mean.copy_(train.log_mag.mean(0))
+                if hasattr(model.binauralizer, "log_distance_mean"):
+                    model.binauralizer.log_distance_mean.fill_(
+                        float(torch.log(torch.linalg.vector_norm(train.source - train.listener, dim=-1).clamp_min(1e-3)).mean()))
+        splits = {name: self.responses.responses(name) for name in ("val", "heldout")}
+        self.evals = {name: rir_data(s, log_floor, cfg.stft, cfg.rir.smooth_bins) for name, s in splits.items() if len(s)}
+        return RIRTrainer(model, train, cfg, cfg.device)
+
+    def validate(self, trainer: RIRTrainer) -> dict:
+        return trainer.evaluate(self.evals["val"]) if "val" in self.evals else {}
+
+    def final(self, trainer: RIRTrainer, final: dict) -> dict:
+        """Log magnitudes and T60 / C50 / EDT on every held-back split."""
+        final = final or {"iteration": trainer.iteration, "points": trainer.model.points.num_points}
+        for name, data in self.evals.items():
+            final.update(trainer.evaluate(data, name))
+            final.update(trainer.room_metrics(data, name, trainer.cfg.rir.eval_responses))
+        return final
+
+    def bounds(self, model: RIRModel, gaussians) -> np.ndarray:
+        """Box [2, 3] (world) around the audio points, the receivers, the sources and the scene's own source."""
+        r, scene = self.responses, self.scene
+        parts = [model.points.X.detach().cpu().numpy().reshape(-1, 3), np.asarray(r.sources).reshape(-1, 3),
+                 np.asarray(r.receivers).reshape(-1, 3), np.asarray(scene.source).reshape(1, 3)]
+        pts = scene.frame.to_world(np.concatenate(parts).astype(np.float64))
+        return np.stack([pts.min(0), pts.max(0)])
+
+    def checkpoint_extra(self, metrics: dict | None) -> dict:
+        """The training positions, and the final metrics that are numbers (the per-phase ones are dicts)."""
+        positions = {"sources": torch.as_tensor(np.asarray(self.responses.sources, dtype=np.float32)).reshape(-1, 3),
+                     "receivers": torch.as_tensor(np.asarray(self.responses.receivers, dtype=np.float32)).reshape(-1, 3)}
+        return {"rir": positions, "metrics": {k: v for k, v in (metrics or {}).items() if not isinstance(v, dict)}}
