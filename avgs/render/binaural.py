@@ -61,14 +61,13 @@ class BinauralTaskModel:
         masks = self.model.masks(pose.listener, pose.theta, pose.source, self._source_context(pose.source), self.cache)
         check_finite((masks.mixture, masks.difference, masks.reverb, masks.decay), self.where,
                      f"masks at listener {tuple(pose.listener_world)}, yaw {pose.yaw!r}")
-        m = self._within_headroom(masks)
-        gains = np.sqrt(ear_power(_numpy(m.mixture), _numpy(m.difference), _numpy(m.reverb),
-                                  _numpy(m.decay) if m.reverb is not None else None))  # [1, 2, F]
-        return Response(torch.from_numpy(gains), m.listener_vicinity, m.source_vicinity, masks=m,
+        m, power = self._within_headroom(masks)
+        return Response(power.sqrt(), m.listener_vicinity, m.source_vicinity, masks=m,
                         impulse=self.impulse(m) if impulse else None)
 
-    def _within_headroom(self, m: Masks) -> Masks:
-        """The masks, scaled down when the pose's ear filter would gain more than HEADROOM_DB in a bin.
+    def _within_headroom(self, m: Masks) -> tuple[Masks, torch.Tensor]:
+        """The masks, scaled down when the pose's ear filter would gain more than HEADROOM_DB in a bin,
+        and each ear's power gain per bin ``[1, 2, F]`` float64 after it (the response's ``gains`` squared).
 
         A bin's energy gain is at most ``g_ear^2 + r_ear^2 w / (1 - w)`` (direct gain, plus the
         tail's geometric sum of decayed power, w its decay per frame); scaling the mixture and
@@ -80,12 +79,12 @@ class BinauralTaskModel:
             power = power + m.reverb.double().square() * (w / (1.0 - w))
         peak_db = 10.0 * math.log10(max(float(power.max()), 1e-300))
         if peak_db <= HEADROOM_DB:
-            return m
+            return m, power
         c = 10.0 ** ((HEADROOM_DB - peak_db) / 20.0)
         warnings.warn(f"the ear filter at this pose gains {peak_db:.1f} dB in its loudest bin; scaled to "
                       f"the {HEADROOM_DB:g} dB headroom", HeadroomLimited, stacklevel=5)  # the caller of render() etc.
         reverb = None if m.reverb is None else m.reverb * c
-        return Masks(m.mixture * c, m.difference, reverb, m.decay, m.listener_vicinity, m.source_vicinity)
+        return Masks(m.mixture * c, m.difference, reverb, m.decay, m.listener_vicinity, m.source_vicinity), power * (c * c)
 
     def impulse(self, m: Masks) -> np.ndarray:
         """The binaural impulse response ``[2, L]`` float32 of one pose's masks."""
