@@ -283,9 +283,10 @@ class StreamEngine:
             if self._impulse is not None:
                 self.makeup_gain = self._fit_gain(self._impulse)
 
-    def set_filter(self, impulse: np.ndarray, tag=None) -> None:
-        """Play through ``impulse [2, L]`` (left, right) from the next block on (a rendered loop
-        playing fades out over that block)."""
+    def set_filter(self, impulse: np.ndarray, tag: int | None = None) -> None:
+        """Play through ``impulse [2, L]`` float32 (left, right: a pose's ``RenderResult.impulse``)
+        from the next block on (a rendered loop playing fades out over that block); ``tag``: the
+        viewer's pose number."""
         h = _binaural(impulse, "binaural filter", "L", "taps")
         with self._lock:
             if self._conv is None:
@@ -300,7 +301,7 @@ class StreamEngine:
             self._filter_tag = tag
             self.filters_set += 1
 
-    def set_loop(self, binaural: np.ndarray, tag, clip: np.ndarray | None = None) -> bool:
+    def set_loop(self, binaural: np.ndarray, tag: int | None, clip: np.ndarray | None = None) -> bool:
         """Play ``binaural [2, T]`` in place of the clip through the filter ``tag``: the looped clip
         rendered at that filter's pose, sample i heard with clip sample i (T = the clip's length).
 
@@ -364,7 +365,7 @@ class StreamEngine:
         loudest = float(np.max(self._spectrum.output_power(h)))
         return float(10.0 ** (self.target_db / 20.0) / np.sqrt(loudest)) if loudest > 0 else 1.0
 
-    def wait_live(self, tag, timeout: float = 10.0) -> float | None:
+    def wait_live(self, tag: int | tuple[str, int] | None, timeout: float = 10.0) -> float | None:
         """The ``perf_counter`` time at which the first block made with filter ``tag`` left the
         engine (``("loop", tag)``: the first block wholly of its rendered loop), waiting up to
         ``timeout`` s for it; None if it has not (yet)."""

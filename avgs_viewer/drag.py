@@ -21,6 +21,10 @@ from .state import Pose, ViewerState
 
 HANDLES = ("listener", "source")
 
+PoseAt = Callable[[float, float], Pose | None]
+"""Display pixel (x, y) -> the pose a drag's move there makes (None: off the plane), from
+:meth:`DragController.follow_map`; the window hands its poses to ``LiveAudio.request``."""
+
 
 class Projector(Protocol):
     """A camera as seen by the drag logic (display pixels, origin bottom left)."""
@@ -130,7 +134,7 @@ class DragController:
             self.state.set_source(target)
         return True
 
-    def follow_map(self, x: float, y: float, span: float = 40.0) -> Callable[[float, float], Pose | None] | None:
+    def follow_map(self, x: float, y: float, span: float = 40.0) -> PoseAt | None:
         """For the drag in progress, pressed at (x, y): display (x, y) -> the pose a move there
         makes, computed without the camera or the state changing (any thread; see
         :mod:`avgs_viewer.pointer`). None when nothing is dragged or the camera looks along the plane."""

@@ -9,11 +9,16 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
 from avgs.io import atomic
+
+from .trained_scene import Position, TrainedScene
+
+if TYPE_CHECKING:
+    from avgs.render.renderer import RenderResult
 
 MAX_SCALE = 8
 MIN_SIZE, MAX_SIZE = 64, 8192  # window pixels before scaling
@@ -89,15 +94,17 @@ def write_screenshot(plotter: Any, path: str | Path, scale: int = 1, transparent
     return path
 
 
-def export_headless(renderer: Any, *, listener, yaw: float, source=None, screenshot: str | Path | None = None,
+def export_headless(renderer: TrainedScene, *, listener: Position, yaw: float, source: Position | None = None,
+                    screenshot: str | Path | None = None,
                     audio: str | Path | None = None, clip: np.ndarray | None = None, scale: int = 1,
                     transparent: bool = False, window_size=(1024, 768), colour_mode: str = "vicinity",
-                    legend: bool = True, caption: bool = False, map_mode: str = "off"):
+                    legend: bool = True, caption: bool = False, map_mode: str = "off") -> RenderResult:
     """Render one pose with no window: a PNG of the point pattern and/or the binaural WAV.
 
-    ``renderer`` is an ``avgs.SceneRenderer``; positions are world coordinates, ``yaw``
-    degrees (kept inside the room as in the window). ``clip`` is the mono signal to
-    binauralise (default: the bundled demo clip, else one second of a test tone).
+    ``renderer`` is an ``avgs.SceneRenderer`` (:class:`~avgs_viewer.trained_scene.TrainedScene`);
+    positions are world coordinates, ``yaw`` degrees (kept inside the room as in the window).
+    ``clip`` is the mono signal to binauralise (default: the bundled demo clip, else one second
+    of a test tone).
     ``legend`` and ``caption`` (the pose) are drawn where they cover no handle; ``map_mode``
     ``"level"`` or ``"ild"`` adds the propagation map on the floor. The WAV is what the
     explorer plays: the clip through the pose's filter. Returns the ``RenderResult``.

@@ -8,23 +8,28 @@ runs next. The explorer's filter path (:mod:`avgs_viewer.worker`), its full-rend
 from __future__ import annotations
 
 import threading
-from typing import Any, Callable
+from typing import Any, Callable, Generic, TypeVar
+
+Request = TypeVar("Request")
+"What is submitted (the filter path: a :class:`~avgs_viewer.worker.PoseRequest`)."
+Result = TypeVar("Result")
+"What ``render`` returns for it (the filter path: the pose's ``RenderResult``)."
 
 
-class RenderWorker:
+class RenderWorker(Generic[Request, Result]):
     """Runs ``render(request)`` on one daemon thread, newest request wins.
 
     ``on_result(seq, request, result)`` / ``on_error(seq, request, exc)`` are called on the
     worker thread; ``seq`` numbers submissions from 1, so a receiver can drop stale ones.
     """
 
-    def __init__(self, render: Callable[[Any], Any], on_result: Callable[[int, Any, Any], None],
-                 on_error: Callable[[int, Any, BaseException], None] | None = None, name: str = "avgs-render"):
+    def __init__(self, render: Callable[[Request], Result], on_result: Callable[[int, Request, Result], None],
+                 on_error: Callable[[int, Request, BaseException], None] | None = None, name: str = "avgs-render"):
         self._render = render
         self._on_result = on_result
         self._on_error = on_error
         self._cond = threading.Condition()
-        self._request: Any = None
+        self._request: Any = None  # (seq, request: Request) of the newest not yet started, while _has_request
         self._has_request = False
         self._busy = False
         self._closed = False
@@ -34,7 +39,7 @@ class RenderWorker:
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
         self._thread.start()
 
-    def submit(self, request: Any) -> int:
+    def submit(self, request: Request) -> int:
         """Queue ``request``, replacing any not yet started; returns its sequence number."""
         with self._cond:
             if self._closed:

@@ -31,6 +31,14 @@ BUTTON1_MASK = 1 << 8
 POLL_SECONDS = 0.002
 "How often the follower asks the X server for the pointer."
 
+ToDisplay = Callable[[int, int], tuple[float, float]]
+"Root (screen) pixels -> display pixels of the 3D view (VTK's convention, origin bottom left)."
+Moved = Callable[[float, float, bool], None]
+"""``moved(x, y, final)``: the pointer at display pixel (x, y); ``final`` for the release (the window
+maps it through :data:`avgs_viewer.drag.PoseAt` to a pose for ``LiveAudio.request``)."""
+Failed = Callable[[BaseException], None]
+"The X server stopped answering: the drag is Qt's alone from then on."
+
 
 class PlaneMap:
     """Display pixel ``(x, y)`` -> where its ray meets a horizontal plane, ``[2]`` (x, y) world.
@@ -125,8 +133,7 @@ class PointerFollower:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
-    def start(self, to_display: Callable[[int, int], tuple[float, float]], expect: tuple[float, float],
-              moved: Callable[[float, float, bool], None], failed: Callable[[BaseException], None],
+    def start(self, to_display: ToDisplay, expect: tuple[float, float], moved: Moved, failed: Failed,
               tolerance_px: float = 2.0) -> bool:
         """Follow from now on. ``to_display(root_x, root_y)`` maps the screen to display pixels;
         ``expect`` is where the press was seen (display pixels). False (nothing started) when
@@ -145,7 +152,8 @@ class PointerFollower:
         self._thread.start()
         return True
 
-    def _run(self, to_display, moved, failed, last, stop) -> None:
+    def _run(self, to_display: ToDisplay, moved: Moved, failed: Failed, last: tuple[int, int],
+             stop: threading.Event) -> None:
         try:
             while not stop.is_set():
                 rx, ry, down = self.pointer.query()

@@ -10,9 +10,11 @@ trained with one source position) its fields are read-only and ``source_note`` s
 
 from __future__ import annotations
 
+from typing import Any, Callable
+
 from PySide6 import QtCore, QtWidgets
 
-from .state import ViewerState
+from .state import Event, ViewerState
 
 LIMIT = 1e6  # what a field accepts; the state, not the field, decides what is inside the room
 SOURCE_FIXED_NOTE = "<i>Source fixed:</i> the scene was trained with this source position only."
@@ -104,7 +106,7 @@ class PosePanel(QtWidgets.QGroupBox):
         if note.isVisible() and note.width() > 0:
             note.setMinimumHeight(note.heightForWidth(note.width()))
 
-    def _subscriptions(self):
+    def _subscriptions(self) -> tuple[tuple[Event[Any], Callable[[Any], None]], ...]:
         ev = self.state.events
         return ((ev.listener, self._show_listener), (ev.source, self._show_source), (ev.yaw, self._show_yaw),
                 (ev.clamped, self._show_notice))

@@ -30,6 +30,7 @@ import numpy as np
 import pyvista as pv
 
 from .state import ViewerState
+from .trained_scene import TrainedScene
 
 MAP_BATCH = 128
 "Cells per partial update of the map on screen."
@@ -81,7 +82,7 @@ def _run_now(fn: Callable[[], None]) -> None:
     fn()
 
 
-def floor_height(scene: Any) -> float:
+def floor_height(scene: TrainedScene) -> float:
     """z of the floor: the room outline's lowest point, else the scene box's floor."""
     outline = scene.outline
     if outline is not None and len(outline):
@@ -192,12 +193,13 @@ class MapWorker:
 class PropagationView:
     """The map's actor and colour bar in ``plotter``, following ``state``'s source, yaw and height.
 
-    ``scene``: an ``avgs.SceneRenderer``. ``post``: runs a callable on the plotter's thread
+    ``scene``: an ``avgs.SceneRenderer`` (typed :class:`~avgs_viewer.trained_scene.TrainedScene`, but the
+    map reads the model inside it). ``post``: runs a callable on the plotter's thread
     (:func:`qt_poster` in the window). ``audio_busy``: True while the audio worker renders
     (the map waits). ``size``: cells a side.
     """
 
-    def __init__(self, plotter: pv.Plotter, scene: Any, state: ViewerState, mode: MapMode | str = MapMode.OFF,
+    def __init__(self, plotter: pv.Plotter, scene: TrainedScene, state: ViewerState, mode: MapMode | str = MapMode.OFF,
                  post: Callable[[Callable[[], None]], None] = _run_now, audio_busy: Callable[[], bool] | None = None,
                  size: int = 64, on_status: Callable[[str], None] | None = None):
         self.plotter, self.scene, self.state = plotter, scene, state
@@ -508,7 +510,7 @@ class MapControls:
     def set_mode(self, mode: MapMode | str) -> None:
         self.combo.setCurrentIndex(self.combo.findData(MapMode(mode).value))
 
-    def install(self, plotter: pv.Plotter, scene: Any, state: ViewerState,
+    def install(self, plotter: pv.Plotter, scene: TrainedScene, state: ViewerState,
                 audio_busy: Callable[[], bool] | None = None) -> None:
         """Draw into ``plotter`` for ``scene`` (an ``avgs.SceneRenderer``) and ``state``."""
         self.teardown()

@@ -22,11 +22,13 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
 from .newest import RenderWorker
+from .state import Pose
+from .trained_scene import Position, TrainedScene
 
 SETTLE_SECONDS = 0.25
 "A pose held this long (no newer pose asked for) is rendered in full."
@@ -45,17 +47,14 @@ the render's next period starts differently from the kept one: its start is cros
 kept period's start over this long (equal power), as :func:`~avgs_viewer.audio.make_seamless_loop` does."""
 
 
-def refines(renderer: Any) -> bool:
-    """Whether ``renderer``'s own synthesis differs from the pose's filter and streams: a binaural-task
-    model with the mid phase (the default) or the filter's phase without iterations. A source-aware
-    (rir task) model's filter is its predicted response, which ``render`` itself convolves."""
-    s = getattr(renderer, "synthesis", None)
-    if s is None or getattr(renderer, "task", "binaural") == "rir" or getattr(renderer, "post_conv", None) is not None:
-        return False
-    return s.method == "spectrogram" and (s.phase == "mid" or (s.phase == "filter" and s.iterations == 0))
+def refines(renderer: TrainedScene) -> bool:
+    """Whether ``renderer``'s own synthesis differs from the pose's filter and streams
+    (:attr:`SceneRenderer.renders_beyond_filter <avgs.render.renderer.SceneRenderer.renders_beyond_filter>`):
+    then a settled pose is rendered anew."""
+    return bool(getattr(renderer, "renders_beyond_filter", False))
 
 
-def periods_before(renderer: Any, period: int) -> int:
+def periods_before(renderer: TrainedScene, period: int) -> int:
     """Periods of a loop ``period`` samples long that the one kept needs before it: those that
     reach it through the tail, the STFT window and the phase iterations (:meth:`SceneRenderer.reach_frames
     <avgs.render.renderer.SceneRenderer.reach_frames>`)."""
@@ -64,7 +63,7 @@ def periods_before(renderer: Any, period: int) -> int:
     return math.ceil(reach / period)
 
 
-def render_loop(renderer: Any, listener, yaw: float, source, loop: np.ndarray,
+def render_loop(renderer: TrainedScene, listener: Position, yaw: float, source: Position | None, loop: np.ndarray,
                 cancelled: Callable[[], bool] = lambda: False, chunk: int = CHUNK) -> np.ndarray | None:
     """``[2, T]`` float32: the endlessly repeated ``loop [T]`` rendered at the pose, one period
     (sample i heard with loop sample i), its start crossfaded from the next period's
@@ -102,9 +101,14 @@ class Refined:
     the engine to the rendered loop being ready."""
 
     seq: int
-    binaural: np.ndarray
-    clip: np.ndarray
+    binaural: np.ndarray  # [2, T] float32
+    clip: np.ndarray  # [T] float32, the engine's looped clip it was rendered from
     after_filter: float
+
+
+RefineJob = tuple[int, Pose, np.ndarray, float]
+"""What :meth:`LoopRefiner.submit` queues: (filter number, pose, loop [T], the ``perf_counter``
+time the pose's filter reached the engine)."""
 
 
 class LoopRefiner:
@@ -114,7 +118,7 @@ class LoopRefiner:
     progress); ``deliver(refined)`` is called on the refiner's thread with the loop.
     """
 
-    def __init__(self, renderer: Any, current: Callable[[], int], deliver: Callable[[Refined], None],
+    def __init__(self, renderer: TrainedScene, current: Callable[[], int], deliver: Callable[[Refined], None],
                  on_error: Callable[[BaseException], None] | None = None, settle: float = SETTLE_SECONDS):
         if settle < 0:
             raise ValueError(f"settle must be >= 0 seconds, got {settle}")
@@ -122,10 +126,10 @@ class LoopRefiner:
         self._current, self._deliver = current, deliver
         self.cancelled = 0
         "Refinements given up because a newer pose came (while settling or rendering)."
-        self.worker = RenderWorker(self._run, self._done, lambda seq, job, exc: on_error and on_error(exc),
-                                   name="avgs-refine")
+        self.worker: RenderWorker[RefineJob, Refined | None] = RenderWorker(
+            self._run, self._done, lambda seq, job, exc: on_error and on_error(exc), name="avgs-refine")
 
-    def submit(self, seq: int, pose: Any, loop: np.ndarray, ready_at: float) -> None:
+    def submit(self, seq: int, pose: Pose, loop: np.ndarray, ready_at: float) -> None:
         """Render ``loop`` at ``pose`` (filter number ``seq``, in the engine since ``ready_at``,
         a ``perf_counter`` time) once it has held for ``settle`` seconds."""
         self.worker.submit((seq, pose, loop, ready_at))
@@ -133,7 +137,7 @@ class LoopRefiner:
     def _stale(self, seq: int) -> bool:
         return self._current() != seq
 
-    def _run(self, job) -> Refined | None:
+    def _run(self, job: RefineJob) -> Refined | None:
         seq, pose, loop, ready_at = job
         while (left := ready_at + self.settle - time.perf_counter()) > 0:  # let the pose settle
             if self._stale(seq):
@@ -146,7 +150,7 @@ class LoopRefiner:
             return None
         return Refined(seq, y, loop, time.perf_counter() - ready_at)
 
-    def _done(self, _seq: int, _job, refined: Refined | None) -> None:
+    def _done(self, _seq: int, _job: RefineJob, refined: Refined | None) -> None:
         if refined is not None and not self._stale(refined.seq):
             self._deliver(refined)
 

@@ -21,7 +21,7 @@ No Qt here; :class:`VtkProjector` gives the drag logic (``avgs_viewer.drag``) th
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyvista as pv
@@ -29,6 +29,10 @@ import pyvista as pv
 from . import colors
 from .drag import pixel_radius
 from .state import ColourMode, ViewerState
+from .trained_scene import TrainedScene
+
+if TYPE_CHECKING:
+    from vtkmodules.vtkRenderingCore import vtkRenderer
 
 BACKGROUND = (22, 24, 30)
 POINT_SIZE = 6.0
@@ -43,8 +47,8 @@ AXES_VIEWPORT = (0.0, 0.0, 0.16, 0.16)  # the axes marker's corner (normalised v
 class VtkProjector:
     """The :class:`avgs_viewer.drag.Projector` of a VTK renderer's current camera."""
 
-    def __init__(self, renderer: Any):
-        self.renderer = renderer
+    def __init__(self, renderer: vtkRenderer):
+        self.renderer = renderer  # VTK's renderer (a plotter's ``renderer``), not the scene's
 
     def to_display(self, world: np.ndarray) -> np.ndarray:
         x, y, z = (float(v) for v in np.asarray(world, dtype=np.float64)[:3])
@@ -99,13 +103,14 @@ def _box_overlaps(box: tuple[float, float, float, float], circles: list[tuple[np
 class SceneView:
     """Builds and updates the scene's actors in ``plotter`` from ``scene`` and ``state``.
 
-    ``scene`` is an ``avgs.SceneRenderer`` (only its public ``points``, ``alpha``,
-    ``gaussians``, ``outline`` and ``bounds`` are read). ``max_points`` caps the drawn
-    points (a fixed random subset, seed 0). ``legend`` shows the colour legend in the 3D
-    view (for exported pictures), ``axes`` an axes marker in the lower left corner.
+    ``scene`` is a :class:`~avgs_viewer.trained_scene.TrainedScene` (an ``avgs.SceneRenderer``;
+    only its ``points``, ``alpha``, ``gaussians``, ``outline`` and ``bounds`` are read).
+    ``max_points`` caps the drawn points (a fixed random subset, seed 0). ``legend`` shows the
+    colour legend in the 3D view (for exported pictures), ``axes`` an axes marker in the lower
+    left corner.
     """
 
-    def __init__(self, plotter: pv.Plotter, scene: Any, state: ViewerState, max_points: int = 40_000,
+    def __init__(self, plotter: pv.Plotter, scene: TrainedScene, state: ViewerState, max_points: int = 40_000,
                  legend: bool = False, axes: bool = True):
         self.plotter = plotter
         self.state = state

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Generic, TypeVar
 
 import numpy as np
 
@@ -34,23 +34,27 @@ class ColourMode(str, enum.Enum):
     "Membership of the listener's and the source's vicinity sets."
 
 
-class Event:
+T = TypeVar("T")
+"The value an :class:`Event` carries."
+
+
+class Event(Generic[T]):
     """A list of callbacks called with one value, in connection order."""
 
     def __init__(self, name: str):
         self.name = name
-        self._callbacks: list[Callable[[Any], None]] = []
+        self._callbacks: list[Callable[[T], None]] = []
 
-    def connect(self, callback: Callable[[Any], None]) -> Callable[[Any], None]:
+    def connect(self, callback: Callable[[T], None]) -> Callable[[T], None]:
         if callback not in self._callbacks:
             self._callbacks.append(callback)
         return callback
 
-    def disconnect(self, callback: Callable[[Any], None]) -> None:
+    def disconnect(self, callback: Callable[[T], None]) -> None:
         if callback in self._callbacks:
             self._callbacks.remove(callback)
 
-    def emit(self, value: Any) -> None:
+    def emit(self, value: T) -> None:
         for callback in list(self._callbacks):
             callback(value)
 
@@ -62,6 +66,18 @@ class ViewerEvents:
              "volume", "playing", "interacting", "clamped", "refused")
     """``clamped`` carries a message naming a position that was moved back inside the scene;
     ``refused`` the reason a move was refused (the source of a one-source scene)."""
+
+    listener: Event[np.ndarray]  # [3] world
+    yaw: Event[float]  # degrees
+    source: Event[np.ndarray]  # [3] world
+    pose: Event[Pose]  # after any of the three: what the audio path renders (avgs_viewer.worker)
+    colour_mode: Event[ColourMode]
+    slice_height: Event[float]
+    volume: Event[float]
+    playing: Event[bool]
+    interacting: Event[bool]
+    clamped: Event[str]
+    refused: Event[str]
 
     def __init__(self):
         for name in self.NAMES:

@@ -21,7 +21,7 @@ import os
 import threading
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Callable, Literal
 
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
@@ -34,7 +34,13 @@ from .pose_panel import PosePanel
 from .propagation_view import MapControls
 from .response_view import ResponsePanel
 from .scene_view import SceneView
-from .state import ColourMode, ViewerState
+from .state import ColourMode, Event, ViewerState
+from .trained_scene import TrainedScene
+
+if TYPE_CHECKING:  # imported when a scene or a drag first needs them
+    from .pointer import PointerFollower
+    from .refine import Refined
+    from .worker import Heard, LiveAudio, PoseRequest
 
 COLOUR_MODE_NAMES = {ColourMode.VICINITY: "Vicinity sets", ColourMode.ALPHA: "Learned alpha (PCA)",
                      ColourMode.RGB: "G's colour (RGB)"}
@@ -155,6 +161,8 @@ class ControlPanel(QtWidgets.QWidget):
                 if mode is ColourMode.RGB and not state.has_rgb:
                     continue
                 self.colour_mode.addItem(name, mode)
+        event: Event[Any]  # each pair's own value type: colour mode, height, yaw, playing, volume
+        cb: Callable[[Any], None]
         for event, cb in ((state.events.colour_mode, self._show_colour_mode),
                           (state.events.slice_height, self._show_slice),
                           (state.events.yaw, self._show_yaw),
@@ -254,13 +262,13 @@ class MainWindow(QtWidgets.QMainWindow):
         super().__init__()
         self.setWindowTitle("AV-GS explorer")
         self.resize(1280, 800)
-        self.renderer: Any = None
+        self.renderer: TrainedScene | None = None
         self.scene_path: Path | None = None
         self.state: ViewerState | None = None
         self.view: SceneView | None = None
         self.drag: DragController | None = None
-        self.live = None
-        self._follower: Any = None  # PointerFollower on X11 (made at the first drag), False where there is none
+        self.live: LiveAudio | None = None
+        self._follower: PointerFollower | Literal[False] | None = None  # made at the first drag; False: none (not X11)
         self.engine: audio.StreamEngine | None = None
         self.output: audio.AudioOutput | None = None
         self.error_dialog: QtWidgets.QMessageBox | None = None
@@ -473,7 +481,7 @@ class MainWindow(QtWidgets.QMainWindow):
         box.open()
         self.error_dialog = box
 
-    def _on_loaded(self, path: Path, renderer: Any) -> None:
+    def _on_loaded(self, path: Path, renderer: TrainedScene) -> None:
         self._loading = False
         self.progress.hide()
         try:
@@ -486,7 +494,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.statusBar().showMessage(f"Loaded {path}: {len(renderer.points)} audio points", 5000)
         self.scene_loaded.emit(renderer)
 
-    def _install_scene(self, renderer: Any) -> None:
+    def _install_scene(self, renderer: TrainedScene) -> None:
         from .worker import LiveAudio
 
         self._teardown_scene()
@@ -574,7 +582,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.drag = None
 
     # ------------------------------------------------------------------ results
-    def _on_rendered(self, heard: Any) -> None:
+    def _on_rendered(self, heard: Heard) -> None:
         """A new pose is playing: show its vicinity sets and levels, at most every SHOW_MS while moving."""
         self._shown_heard = heard
         if not self._show_timer.isActive():
@@ -599,13 +607,13 @@ class MainWindow(QtWidgets.QMainWindow):
         self.response.show_response(heard.result.impulse, self.renderer.sample_rate,  # the filter it plays
                                     moving=self.state.interacting)
 
-    def _on_refined(self, refined: Any) -> None:
+    def _on_refined(self, refined: Refined) -> None:
         """The pose heard now plays its loop rendered in full."""
         live = self.live
         if live is not None and live.heard is not None and live.heard.request.seq == refined.seq:
             self.panel.show_heard(True)
 
-    def _on_render_failed(self, request: Any, message: str) -> None:
+    def _on_render_failed(self, request: PoseRequest | None, message: str) -> None:
         self.statusBar().showMessage(f"Render failed: {message}", 10000)
 
     def _update_meters(self) -> None:

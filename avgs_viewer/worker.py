@@ -19,7 +19,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -27,6 +27,10 @@ from .audio import StreamEngine, filter_levels, make_seamless_loop
 from .newest import RenderWorker
 from .refine import SETTLE_SECONDS, LoopRefiner, Refined, refines
 from .state import Pose, ViewerState
+from .trained_scene import TrainedScene
+
+if TYPE_CHECKING:  # torch: imported off the GUI thread only
+    from avgs.render.renderer import RenderResult
 
 
 def same_pose(a: Pose | None, b: Pose | None, tolerance: float = 1e-6) -> bool:
@@ -53,12 +57,12 @@ class Heard:
     vicinity sets, ...) and the levels the clip has through it at full volume."""
 
     request: PoseRequest
-    result: Any
+    result: RenderResult  # SceneRenderer.binaural_filter's: impulse [2, L] float32, vicinity sets, gains
     levels: tuple[float, float, float]  # (left dB, right dB, left - right dB)
     ready_at: float  # perf_counter when the engine was handed the filter
 
 
-def pose_filter(renderer: Any, pose: Pose) -> Any:
+def pose_filter(renderer: TrainedScene, pose: Pose) -> RenderResult:
     """The pose's binaural filter: a ``RenderResult`` whose ``impulse`` is [2, L] float32 (left first)."""
     return renderer.binaural_filter(pose.listener, pose.yaw, source=pose.source)
 
@@ -66,7 +70,7 @@ def pose_filter(renderer: Any, pose: Pose) -> Any:
 class LiveAudio:
     """State pose changes -> the pose's filter on the worker -> the audio engine.
 
-    ``renderer`` is an ``avgs.SceneRenderer`` (or anything with its ``binaural_filter``);
+    ``renderer``: the scene (:class:`~avgs_viewer.trained_scene.TrainedScene`, an ``avgs.SceneRenderer``);
     ``on_result(heard)`` is called on the worker thread once the engine has the new filter
     (the window forwards it to the GUI thread for the vicinity colours and levels). The
     pose event reaches this object before anything is drawn (the window draws on demand,
@@ -78,9 +82,9 @@ class LiveAudio:
     plays that loop (:attr:`refined`), and ``on_refined(refined)`` is called on the refiner's thread.
     """
 
-    def __init__(self, renderer: Any, state: ViewerState, engine: StreamEngine, clip: np.ndarray,
+    def __init__(self, renderer: TrainedScene, state: ViewerState, engine: StreamEngine, clip: np.ndarray,
                  on_result: Callable[[Heard], None] | None = None,
-                 on_error: Callable[[PoseRequest, BaseException], None] | None = None,
+                 on_error: Callable[[PoseRequest | None, BaseException], None] | None = None,
                  seam_seconds: float = 0.05, settle: float | None = SETTLE_SECONDS,
                  on_refined: Callable[[Refined], None] | None = None):
         self.renderer = renderer
@@ -100,8 +104,9 @@ class LiveAudio:
         "The newest pose rendered in full and handed to the engine (None before the first)."
         self._on_refined = on_refined
         engine.set_clip(self._as_loop(clip))
-        self.worker = RenderWorker(self._render, self._deliver, self._fail, name="avgs-filter")
-        self.refiner = None
+        self.worker: RenderWorker[PoseRequest, RenderResult] = RenderWorker(
+            self._render, self._deliver, self._fail, name="avgs-filter")
+        self.refiner: LoopRefiner | None = None
         if settle is not None and refines(renderer):
             self.refiner = LoopRefiner(renderer, lambda: self.seq, self._deliver_refined,
                                        lambda exc: self._fail(self.seq, self.last_request, exc), settle)
@@ -119,7 +124,7 @@ class LiveAudio:
         return self.engine.clip
 
     @property
-    def last_result(self) -> Any:
+    def last_result(self) -> RenderResult | None:
         """The renderer's result for the pose heard now (None before the first)."""
         heard = self.heard
         return None if heard is None else heard.result
@@ -174,10 +179,10 @@ class LiveAudio:
             return
         self.request(pose)
 
-    def _render(self, request: PoseRequest) -> Any:
+    def _render(self, request: PoseRequest) -> RenderResult:
         return pose_filter(self.renderer, request.pose)
 
-    def _deliver(self, seq: int, request: PoseRequest, result: Any) -> None:
+    def _deliver(self, seq: int, request: PoseRequest, result: RenderResult) -> None:
         clip = self.engine.clip
         self.engine.set_filter(result.impulse, tag=request.seq)
         ready = time.perf_counter()
@@ -198,7 +203,7 @@ class LiveAudio:
             if self._on_refined is not None:
                 self._on_refined(refined)
 
-    def _fail(self, seq: int, request: PoseRequest, exc: BaseException) -> None:
+    def _fail(self, seq: int, request: PoseRequest | None, exc: BaseException) -> None:
         if self._on_error is not None:
             self._on_error(request, exc)
 
