@@ -1,5 +1,7 @@
-"""Scene data: the RWAVS-layout reader, the world <-> normalised frame, camera views and
-the synthetic generator.
+"""Scene data, read (never written): the RWAVS-layout reader (:mod:`.rwavs`), the
+impulse-response layout's (:mod:`.rir`), the world <-> normalised frame (:mod:`.frame`), camera
+views (:mod:`.views`), scene.json's geometry (:mod:`.scene_geometry`) and checked file reading
+(:mod:`.files`). The generator that writes such scenes is :mod:`avgs.synth`.
 
 Kept import-light on purpose: import the submodule you need
 (``from avgs.data.rwavs import RWAVSScene``).

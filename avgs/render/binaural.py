@@ -27,7 +27,7 @@ from avgs.acoustics.synthesis import (Masks, SourceParts, ear_gains, ear_spectro
                                       unit_phase, waveform)
 from avgs.config import STFTConfig, SynthesisConfig
 from avgs.render.cells import ear_power, listener_contexts
-from avgs.render.tasks import HEADROOM_DB, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames
+from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames
 
 RENDER_BLOCK_FRAMES = 2048
 "Frames per block when a long input is rendered (about 12 s at AV-NeRF's hop): memory stays bounded."
@@ -194,7 +194,7 @@ class BinauralTaskModel:
         return reach_frames(self.stft, synthesis, self.tail_decay() if decay is None else decay, n_frames,
                             CONTEXT_FRAMES if self.post_conv is not None else 0)
 
-    def stream(self, response: Response, synthesis: SynthesisConfig, block_frames: int | None = None):
+    def stream(self, response: Response, synthesis: SynthesisConfig, block_frames: int | None = None) -> BlockStream:
         """With the default synthesis (phase ``mid``) a :class:`~avgs.render.mid_phase_stream.MidPhaseStream`,
         with the filter's phase and no iterations a :class:`~avgs.render.streaming.BinauralStream`,
         with ``method="filter"`` a :class:`~avgs.acoustics.convolution.ConvolutionStream`."""
@@ -226,7 +226,7 @@ class BinauralTaskModel:
         return (self.post_conv is None and s.method == "spectrogram"
                 and (s.phase == "mid" or (s.phase == "filter" and s.iterations == 0)))
 
-    def move_stream(self, stream, response: Response) -> None:
+    def move_stream(self, stream: BlockStream, response: Response) -> None:
         stream.set_pose(response.masks.to(torch.float32), response.impulse)
 
     # -- the propagation map -----------------------------------------------------------------

@@ -27,7 +27,7 @@ from avgs.acoustics.rir_model import RIRModel, ear_transfer, response_waveform
 from avgs.config import STFTConfig, SynthesisConfig
 from avgs.data.frame import SceneFrame, signed_direction
 from avgs.render.cells import early_frames, frame_interpolation, frame_nodes, listener_contexts
-from avgs.render.tasks import HEADROOM_DB, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames
+from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames
 
 RESPONSE_CHUNK = 32
 "Poses per batch of :meth:`ImpulseResponseTaskModel.predict_responses`."
@@ -80,14 +80,14 @@ class ImpulseResponseTaskModel:
         """:func:`~avgs.render.tasks.reach_frames`: no tail beyond the response itself unless ``decay`` says one."""
         return reach_frames(self.stft, synthesis, decay, n_frames)
 
-    def stream(self, response: Response, synthesis: SynthesisConfig, block_frames: int | None = None):
+    def stream(self, response: Response, synthesis: SynthesisConfig, block_frames: int | None = None) -> BlockStream:
         """The input convolved with the response, whatever the synthesis."""
         return ConvolutionStream(response.impulse)
 
     def beyond_filter(self, synthesis: SynthesisConfig) -> bool:
         return False  # the render is the convolution with the response, whatever the synthesis
 
-    def move_stream(self, stream, response: Response) -> None:
+    def move_stream(self, stream: BlockStream, response: Response) -> None:
         stream.set_pose(None, response.impulse)
 
     def cell_power(self, listener, theta, yaw, source, cached_source, bins=None, fast=None) -> np.ndarray:

@@ -50,7 +50,7 @@ from avgs.config import SynthesisConfig
 from avgs.data.frame import SceneFrame, signed_direction
 from avgs.gaussians.sh import sh_to_rgb
 from avgs.io.checkpoint import config_of, load_checkpoint, stft_of
-from avgs.render.tasks import HEADROOM_DB, HeadroomLimited, Pose, Response, TaskModel, peak  # noqa: F401
+from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, TaskModel, peak  # noqa: F401
 from avgs.tasks import Task, task_of
 
 
@@ -399,7 +399,7 @@ class SceneRenderer:
         and a conv head's context. ``decay``: a tail decay [F] other than the model's."""
         return self.task_model.reach_frames(self.synthesis if synthesis is None else synthesis, n_frames, decay)
 
-    def stream(self, listener, yaw: float, source=None, block_frames: int | None = None):
+    def stream(self, listener, yaw: float, source=None, block_frames: int | None = None) -> BlockStream:
         """A stream for this pose: feed mono blocks of any size to ``process``, then ``flush()``;
         the concatenated output equals :meth:`render` of the whole input (float rounding),
         ``latency`` samples behind at most.
@@ -417,7 +417,7 @@ class SceneRenderer:
             _, r = self._response(listener, yaw, source)
             return self.task_model.stream(r, self.synthesis, block_frames)
 
-    def move_stream(self, stream, listener, yaw: float, source=None) -> RenderResult:
+    def move_stream(self, stream: BlockStream, listener, yaw: float, source=None) -> RenderResult:
         """Switch a :meth:`stream` of this scene to another pose from its next block (crossfaded,
         no click; safe from another thread than the one feeding it). Returns the new pose's
         :meth:`binaural_filter`."""

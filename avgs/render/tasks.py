@@ -61,6 +61,24 @@ class Response:
     impulse: np.ndarray | None = None  # [2, L] float32, channel 0 = left
 
 
+class BlockStream(Protocol):
+    """A pose's sound block by block (:class:`~avgs.render.mid_phase_stream.MidPhaseStream`,
+    :class:`~avgs.render.streaming.BinauralStream`, :class:`~avgs.acoustics.convolution.ConvolutionStream`):
+    the concatenated output equals a one-shot render, ``latency`` samples behind at most."""
+
+    @property
+    def latency(self) -> int: ...
+
+    def process(self, x) -> np.ndarray:
+        """Output ``[2, m]`` (m may be 0) for the next mono input samples ``x [n]``."""
+
+    def flush(self) -> np.ndarray:
+        """The rest of the output ``[2, m]``; the stream takes no more input."""
+
+    def set_pose(self, masks: Masks | None, impulse: np.ndarray | None) -> None:
+        """Go on with another pose from the next block."""
+
+
 class TaskModel(Protocol):
     """What the renderer asks of a task's model. Calls come under the renderer's lock and
     ``torch.inference_mode``; positions are normalised, already inside the scene."""
@@ -79,14 +97,14 @@ class TaskModel(Protocol):
         """``(binaural [2, T] float32, ear magnitudes [2, F, N_t] or None, the output's peak)`` of
         ``x`` [T] float32 at unit peak (NaN peak when a sample is not finite)."""
 
-    def stream(self, response: Response, synthesis: SynthesisConfig, block_frames: int | None):
+    def stream(self, response: Response, synthesis: SynthesisConfig, block_frames: int | None) -> BlockStream:
         """A block stream of this response (``process``, ``flush``, ``set_pose``, ``latency``)."""
 
     def beyond_filter(self, synthesis: SynthesisConfig) -> bool:
         """Whether a render with ``synthesis`` differs from the pose's filter and still streams (so
         that the explorer, which plays the filter while a pose moves, renders a settled pose anew)."""
 
-    def move_stream(self, stream, response: Response) -> None:
+    def move_stream(self, stream: BlockStream, response: Response) -> None:
         """Switch ``stream`` to ``response`` from its next block."""
 
     def reach_frames(self, synthesis: SynthesisConfig, n_frames: int | None = None,

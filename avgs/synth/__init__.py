@@ -10,7 +10,6 @@ One job per module:
 - :mod:`.simulate`   pyroomacoustics rooms and binaural room impulse responses, RT60
 - :mod:`.signals`    deterministic mono source signals
 - :mod:`.render`     RGB key frames with PyVista off-screen
-- :mod:`.geometry`   points sampled on a written scene's surfaces (normalised frame)
 - :mod:`.writer`     one scene folder, atomically, in the RWAVS layout
 - :mod:`.grid`       source and receiver grids of an impulse-response scene, its split by pair
 - :mod:`.rir_writer` an impulse-response scene (``avgs synth --task rir``): the RWAVS files for
