@@ -101,7 +101,9 @@ def test_scene_score_is_the_mean_over_val_clips(scene):
 
 def test_any_callable_is_a_method(scene):
     oracle = lambda clip, scene: clip.binaural  # noqa: E731
-    assert evaluate.score_scene(oracle, scene, progress=False) == {"MAG": 0.0, "ENV": 0.0, "ILD": 0.0, "MAGp": 0.0}
+    exact = evaluate.score_scene(oracle, scene, progress=False)
+    assert {k: exact[k] for k in evaluate.MEAN_METRICS} == {"MAG": 0.0, "ENV": 0.0, "ILD": 0.0, "MAGp": 0.0}
+    assert exact["ITD"] == 0.0 and exact["LAT"] in (100.0, None)  # None: no clip with a true |ITD| >= 150 us
     swapped = lambda clip, scene: clip.binaural[::-1]  # noqa: E731  left and right exchanged
     swapped_score = evaluate.score_scene(swapped, scene, progress=False)
     assert swapped_score["MAG"] > 0
@@ -157,7 +159,9 @@ def test_cli_prints_tables_and_writes_json(data_root, tmp_path, capsys):
     for name, result in report["methods"].items():
         assert set(result["scenes"]) == {"7", "garden-1", "office_1", "office_2"}
         for score in result["scenes"].values():
-            assert set(score) == {"MAG", "ENV", "ILD", "MAGp"} and all(np.isfinite(list(score.values())))
+            assert list(score) == ["MAG", "ENV", "ILD", "MAGp", "ITD", "LAT"]
+            assert all(np.isfinite(v) for k, v in score.items() if k != "LAT")
+            assert score["LAT"] is None or 0.0 <= score["LAT"] <= 100.0
         office = np.mean([result["scenes"][s]["MAG"] for s in ("office_1", "office_2")])
         assert result["environments"]["office"]["MAG"] == pytest.approx(office)
         expected = np.mean([office, result["scenes"]["garden-1"]["MAG"], result["scenes"]["7"]["MAG"]])

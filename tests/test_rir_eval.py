@@ -202,7 +202,8 @@ def test_metrics_of_exponential_decays_recover_their_t60():
     errors = evaluate_rir.response_errors(pred, gt, FS)
     assert errors["t60_pct"] == pytest.approx(10.0, abs=3.0)
     assert errors["edt_s"] == pytest.approx(0.05, abs=0.02)  # mean of 0.04 and 0.06
-    assert evaluate_rir.response_errors(gt, gt, FS) == {"t60_pct": 0.0, "c50_db": 0.0, "edt_s": 0.0}
+    assert evaluate_rir.response_errors(gt, gt, FS) == {"t60_pct": 0.0, "c50_db": 0.0, "edt_s": 0.0,
+                                                        "onset_ms": 0.0, "itd_us": 0.0, "ild_db": 0.0}
 
 
 # -- the evaluator and the command line on the quick scene -----------------------------------
@@ -229,13 +230,17 @@ def test_the_report_has_the_binaural_tasks_shape(quick_root, tmp_path):
         m = report["methods"][name]
         assert set(m) == set(binaural["methods"]["mono-mono"]) == {"scenes", "environments", "overall"}
         assert set(m["scenes"]) == {"quick_rect"} and set(m["environments"]) == set(report["environments"].values())
-        assert list(m["overall"]) == list(evaluate_rir.RIR_METRICS) == ["t60_pct", "c50_db", "edt_s"]
-        assert all(math.isfinite(v) and v >= 0 for v in m["overall"].values())
+        assert list(m["overall"]) == list(evaluate_rir.RIR_METRICS) == ["t60_pct", "c50_db", "edt_s", "onset_ms",
+                                                                        "itd_us", "ild_db", "lat_pct"]
+        assert all(math.isfinite(v) and v >= 0 for k, v in m["overall"].items() if k != "lat_pct")
+        assert m["overall"]["lat_pct"] is None or 0.0 <= m["overall"]["lat_pct"] <= 100.0
         assert m["overall"] == m["scenes"]["quick_rect"]  # one scene, one environment
     # scoring the training split: interpolation returns the responses themselves
     train = evaluate_rir.evaluate(methods, [quick_root / "quick_rect"], split="train", progress=False)
     for name in methods:
-        assert train["methods"][name]["overall"] == {"t60_pct": 0.0, "c50_db": 0.0, "edt_s": 0.0}
+        got = dict(train["methods"][name]["overall"])
+        assert got.pop("lat_pct") in (100.0, None)  # the true ITDs themselves: all agree (None: none eligible)
+        assert got == {"t60_pct": 0.0, "c50_db": 0.0, "edt_s": 0.0, "onset_ms": 0.0, "itd_us": 0.0, "ild_db": 0.0}
 
 
 def test_cli_scores_both_splits_and_writes_json(quick_root, tmp_path, capsys):

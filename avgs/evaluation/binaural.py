@@ -12,9 +12,15 @@ the ILD error, and MAGp, MAG of the predicted magnitudes
 (:func:`avgs.evaluation.metrics.mag_spectrogram`), AV-NeRF's own evaluation convention and the one
 its published numbers use. For a method that returns only a waveform, MAGp is its MAG.
 
-Aggregation follows RWAVS: a scene's score is the mean over its val clips; an
-environment's is the mean over its scenes; overall is the mean of the environment
-means. A scene's environment is, in order: scene.json's ``"environment"``; else the
+Spatial cues (:mod:`avgs.evaluation.spatial`, docs/design.md "Spatial cues"): ITD, the MEDIAN
+over the scene's clips of ``|ITD_pred - ITD_true|`` in microseconds (GCC-PHAT over the whole
+clip), and LAT, the lateralisation agreement in percent over the scene's clips (``None`` --
+JSON ``null``, the table's ``n/a`` -- when no clip's true ``|ITD|`` reaches 150 us).
+
+Aggregation follows RWAVS: a scene's score is the mean over its val clips (ITD: the median;
+LAT: the share); an environment's is the mean over its scenes; overall is the mean of the
+environment means, each mean skipping ``None`` (``None`` when every value is). A scene's
+environment is, in order: scene.json's ``"environment"``; else the
 scene name's prefix before the first ``_`` or ``-`` (``office_2`` -> ``office``); else the
 scene name itself (real RWAVS scenes are numbered, so each is its own environment).
 """
@@ -31,14 +37,17 @@ import torch
 from tqdm.auto import tqdm
 
 from avgs import dsp
-from avgs.evaluation import metrics
+from avgs.evaluation import metrics, spatial
 from avgs.evaluation.baselines import BASELINES
 from avgs.config import STFT, SynthesisConfig
 from avgs.data.rwavs import AudioClip, RWAVSScene, is_scene_dir
 from avgs.evaluation.methods import Method, Prediction
 
 
-METRICS = ("MAG", "ENV", "ILD", "MAGp")
+MEAN_METRICS = ("MAG", "ENV", "ILD", "MAGp")
+"The metrics whose scene value is the mean over the clips."
+METRICS = (*MEAN_METRICS, "ITD", "LAT")
+"A scene's metrics: the means, ITD (median error, us) and LAT (agreement, %, or None)."
 CKPT_PREFIX = "ckpt:"
 
 
@@ -215,24 +224,39 @@ def _float32(x) -> np.ndarray:
 
 def score_scene(
     method: Method, scene: RWAVSScene, name: str = "method", split: str = "val", progress: bool = True
-) -> dict[str, float]:
-    """Mean MAG, ENV, ILD error and MAGp of ``method`` over the scene's ``split`` clips."""
+) -> dict[str, float | None]:
+    """Mean MAG, ENV, ILD error and MAGp, median ITD error (us) and lateralisation agreement
+    (%, None when no clip is eligible) of ``method`` over the scene's ``split`` clips."""
     clips = scene.clips(split)
     if not clips:
         raise ValueError(f"{scene.root}: no {split} clips to evaluate")
-    totals = dict.fromkeys(METRICS, 0.0)
+    fs = getattr(scene, "sample_rate", STFT.sample_rate)
+    totals = dict.fromkeys(MEAN_METRICS, 0.0)
+    itd_pred, itd_true, itd_errors = [], [], []
     for clip in tqdm(clips, desc=f"{name} / {scene.name}", unit="clip", leave=False, disable=not progress):
         pred, mags = predict(method, clip, scene, name)
         totals["MAG"] += metrics.mag(pred, clip.binaural)
         totals["ENV"] += metrics.env(pred, clip.binaural)
         totals["ILD"] += metrics.ild_error(pred, clip.binaural)
         totals["MAGp"] += metrics.mag_spectrogram(mags, clip.binaural)
-    return {k: v / len(clips) for k, v in totals.items()}
+        p, t, error = spatial.clip_itds(pred, clip.binaural, fs)
+        itd_pred.append(p)
+        itd_true.append(t)
+        itd_errors.append(error)
+    scores: dict[str, float | None] = {k: v / len(clips) for k, v in totals.items()}
+    scores["ITD"] = spatial.median(itd_errors)
+    scores["LAT"] = spatial.lateralisation(itd_true, itd_pred)
+    return scores
 
 
-def _mean(scores: Iterable[dict[str, float]]) -> dict[str, float]:
+def _mean(scores: Iterable[dict[str, float | None]]) -> dict[str, float | None]:
+    """Per metric, the mean over ``scores`` of the values that are not None (None if none is)."""
     scores = list(scores)
-    return {k: float(np.mean([s[k] for s in scores])) for k in scores[0]}
+    out: dict[str, float | None] = {}
+    for k in scores[0]:
+        values = [s[k] for s in scores if s.get(k) is not None]
+        out[k] = float(np.mean(values)) if values else None
+    return out
 
 
 def aggregate(scene_scores: dict[str, dict[str, float]], environments: dict[str, str]) -> dict:
@@ -254,7 +278,8 @@ def evaluate(
 
     Scenes are loaded one at a time (a real scene's recordings are minutes long).
     Returns ``{"split", "environments": {scene: env}, "clips": {scene: n},
-    "methods": {name: {"scenes": {scene: {MAG, ENV}}, "environments": {...}, "overall": {...}}}}``.
+    "methods": {name: {"scenes": {scene: {MAG, ENV, ILD, MAGp, ITD, LAT}}, "environments": {...},
+    "overall": {...}}}}`` (LAT may be None: JSON null).
     """
     per_method: dict[str, dict[str, dict[str, float]]] = {name: {} for name in methods}
     environments: dict[str, str] = {}
@@ -276,13 +301,15 @@ def evaluate(
     return report
 
 
-COLUMNS = (("MAG", 9, ".3f"), ("ENV", 8, ".4f"), ("ILD", 6, ".2f"), ("MAGp", 8, ".3f"))
-"The binaural task's table columns: (metric, least width, format)."
+COLUMNS = (("MAG", 9, ".3f"), ("ENV", 8, ".4f"), ("ILD", 6, ".2f"), ("MAGp", 8, ".3f"), ("ITD", 8, ".1f"),
+           ("LAT", 7, ".1f"))
+"The binaural task's table columns: (metric, least width, format); ITD in us, LAT in %."
 
 
 def format_report(report: dict, columns=COLUMNS, unit: str = "clips") -> str:
     """Plain-text table: one row per scene, per environment and overall; per method the
-    ``columns`` (default: MAG, ENV, ILD error (dB) and MAGp), each ``(metric, least width, format)``."""
+    ``columns`` (default: MAG, ENV, ILD error (dB), MAGp, ITD error (us) and LAT (%)), each
+    ``(metric, least width, format)``; a value that is None (no eligible clip) shows ``n/a``."""
     names = list(report["methods"])
     label_w = max([len("overall")] + [len(s) + 6 for s in report["environments"]] + [len(e) + 6 for e in report["environments"].values()])
     col_w = max(sum(w for _, w, _ in columns), *(len(n) + 2 for n in names))
@@ -292,11 +319,17 @@ def format_report(report: dict, columns=COLUMNS, unit: str = "clips") -> str:
     head2 = " " * label_w + "".join(f"{c:>{w}}" for c, w, _ in cols) * len(names)
     lines = [f"{report['split']} {unit}: {sum(report['clips'].values())} in {len(report['clips'])} scene(s)", head1, head2]
 
+    def cell(s: dict | None, c: str, w: int, fmt: str) -> str:
+        if not s:
+            return f"{'-':>{w}}"
+        value = s.get(c)
+        return f"{'n/a':>{w}}" if value is None else f"{value:>{w}{fmt}}"
+
     def row(label: str, pick) -> str:
         cells = []
         for n in names:
             s = pick(report["methods"][n])
-            cells.append("".join(f"{s[c]:>{w}{fmt}}" if s else f"{'-':>{w}}" for c, w, fmt in cols))
+            cells.append("".join(cell(s, c, w, fmt) for c, w, fmt in cols))
         return f"{label:<{label_w}}" + "".join(cells)
 
     for scene_id in report["environments"]:

@@ -1,4 +1,4 @@
-"""Score methods on impulse-response scenes (the RIR task): T60 %, C50 dB and EDT s.
+"""Score methods on impulse-response scenes (the RIR task): T60 %, C50 dB, EDT s and the spatial cues.
 
 A *method* of the RIR task is a callable ``(train: RIRSet, query: RIRSet) -> [N, 2, L]``
 (numpy or torch): the responses it predicts for the query's (source, receiver, yaw), given
@@ -11,14 +11,20 @@ and ``for_scene(scene)`` (a folder of checkpoints: the one for that scene).
 Per response, each metric is that of :mod:`avgs.evaluation.metrics` (docs/design.md, "Metrics and baselines"), averaged
 over the two ears: ``t60_pct`` (``|T60_pred - T60_gt| / T60_gt x 100``, a failed
 measurement counting 100 %), ``c50_db`` (``|C50_pred - C50_gt|``), ``edt_s``
-(``|EDT_pred - EDT_gt|``). A scene's score is the mean over its responses of the split;
-an environment's the mean over its scenes; overall the mean of the environment means,
-as the binaural task (:func:`avgs.evaluation.binaural.aggregate`).
+(``|EDT_pred - EDT_gt|``). A scene's score of these is the mean over its responses of the split.
+The spatial cues (:mod:`avgs.evaluation.spatial`, docs/design.md "Spatial cues"), on both
+ears together: ``onset_ms`` (``|onset_pred - onset_true|`` ms), ``itd_us`` (``|ITD_pred -
+ITD_true|`` of the direct sound, the 5 ms after the onset, us), ``ild_db`` (``|ILD_pred -
+ILD_true|`` of those 5 ms, dB), each a scene's MEDIAN over its responses, and ``lat_pct``, the
+lateralisation agreement over the scene's responses in % (``None``, JSON ``null``, when no
+response's true |ITD| reaches 150 us). An environment's score is the mean over its scenes;
+overall the mean of the environment means, as the binaural task
+(:func:`avgs.evaluation.binaural.aggregate`; a None is skipped).
 
 The report has the binaural task's shape, plus ``"task": "rir"``:
 ``{"task", "split", "environments": {scene: env}, "clips": {scene: responses scored},
-"methods": {name: {"scenes": {scene: {t60_pct, c50_db, edt_s}}, "environments": {...},
-"overall": {...}}}}``. ``split="both"`` scores val and heldout and returns
+"methods": {name: {"scenes": {scene: {t60_pct, c50_db, edt_s, onset_ms, itd_us, ild_db, lat_pct}},
+"environments": {...}, "overall": {...}}}}``. ``split="both"`` scores val and heldout and returns
 ``{"task": "rir", "split": "both", "splits": {"val": report, "heldout": report}}``.
 """
 
@@ -34,7 +40,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from avgs.evaluation import metrics
+from avgs.evaluation import metrics, spatial
 from avgs.evaluation.binaural import CKPT_PREFIX, CheckpointMethod, CheckpointSetMethod, aggregate
 from avgs.evaluation.binaural import format_report as format_table
 from avgs.evaluation.interpolation import RIR_BASELINES, CodecMethod
@@ -42,8 +48,14 @@ from avgs.evaluation.interpolation import RIR_BASELINES, CodecMethod
 if TYPE_CHECKING:
     from avgs.data.rir import RIRScene, RIRSet
 
-RIR_METRICS = ("t60_pct", "c50_db", "edt_s")
-COLUMNS = (("t60_pct", 9, ".2f"), ("c50_db", 8, ".3f"), ("edt_s", 8, ".4f"))
+MEAN_METRICS = ("t60_pct", "c50_db", "edt_s")
+"The metrics whose scene value is the mean over the responses."
+MEDIAN_METRICS = spatial.RESPONSE_METRICS
+"The spatial errors whose scene value is the median over the responses: onset_ms, itd_us, ild_db."
+RIR_METRICS = (*MEAN_METRICS, *MEDIAN_METRICS, "lat_pct")
+"A scene's metrics, in the report's order."
+COLUMNS = (("t60_pct", 9, ".2f"), ("c50_db", 8, ".3f"), ("edt_s", 8, ".4f"), ("onset_ms", 9, ".3f"),
+           ("itd_us", 8, ".1f"), ("ild_db", 8, ".2f"), ("lat_pct", 8, ".1f"))
 "The table's columns: (metric, least width, format)."
 SPLITS = ("val", "heldout", "train", "both")
 "What ``split`` accepts: a split of the scene's index, or ``both`` (val and heldout)."
@@ -197,32 +209,48 @@ def predict(method, train: "RIRSet", query: "RIRSet", name: str = "method", scen
 
 
 def response_errors(pred: np.ndarray, gt: np.ndarray, fs: float) -> dict[str, float]:
-    """The three errors of one response ``[2, L]`` (each averaged over the ears)."""
+    """The errors of one response ``[2, L]``: T60, C50 and EDT (each averaged over the ears),
+    and the spatial ``onset_ms``, ``itd_us`` and ``ild_db`` (:func:`avgs.evaluation.spatial.response_errors`)."""
     return {
         "t60_pct": metrics.t60_error(pred, gt, fs),
         "c50_db": metrics.c50_error(pred, gt, fs),
         "edt_s": metrics.edt_error(pred, gt, fs),
+        **spatial.response_errors(pred, gt, fs),
     }
 
 
 def score_scene(method, scene: "RIRScene", split: str = "val", name: str = "method", progress: bool = True,
-                chunk: int = CHUNK) -> dict[str, float]:
-    """Mean T60 %, C50 dB and EDT s of ``method`` over the scene's ``split`` responses."""
+                chunk: int = CHUNK) -> dict[str, float | None]:
+    """Mean T60 %, C50 dB and EDT s, median onset (ms), direct-sound ITD (us) and early-ILD (dB)
+    errors and the lateralisation agreement (%, None when no response is eligible) of
+    ``method`` over the scene's ``split`` responses."""
     method = method.for_scene(scene) if hasattr(method, "for_scene") else method
     train, query = scene.responses("train"), scene.responses(split)
     if len(query) == 0:
         raise ValueError(f"{scene.scene_dir}: no {split} responses to evaluate")
-    totals = dict.fromkeys(RIR_METRICS, 0.0)
+    totals = dict.fromkeys(MEAN_METRICS, 0.0)
+    per_response: dict[str, list[float]] = {k: [] for k in MEDIAN_METRICS}
+    itd_true: list[float] = []
+    itd_pred: list[float] = []
+    fs = scene.sample_rate
     with tqdm(total=len(query), desc=f"{name} / {scene.name} / {split}", unit="response", leave=False,
               disable=not progress) as bar:
         for start in range(0, len(query), chunk):
             part = _rows(query, slice(start, start + chunk))
             pred = predict(method, train, part, name, scene)
             for p, g in zip(pred, part.rir):
-                for k, v in response_errors(p, g, scene.sample_rate).items():
-                    totals[k] += v
+                errors = response_errors(p, g, fs)
+                for k in MEAN_METRICS:
+                    totals[k] += errors[k]
+                for k in MEDIAN_METRICS:
+                    per_response[k].append(errors[k])
+                itd_true.append(spatial.response_itd(g, fs))
+                itd_pred.append(spatial.response_itd(p, fs))
             bar.update(len(part))
-    return {k: v / len(query) for k, v in totals.items()}
+    scores: dict[str, float | None] = {k: v / len(query) for k, v in totals.items()}
+    scores.update({k: spatial.median(v) for k, v in per_response.items()})
+    scores["lat_pct"] = spatial.lateralisation(itd_true, itd_pred)
+    return scores
 
 
 def evaluate(methods: dict, scene_dirs: Iterable[str | Path], split: str = "val", progress: bool = True) -> dict:
@@ -259,7 +287,8 @@ def evaluate(methods: dict, scene_dirs: Iterable[str | Path], split: str = "val"
 
 
 def format_report(report: dict) -> str:
-    """The table of :func:`avgs.evaluation.binaural.format_report` with T60 %, C50 dB and EDT s; one per split."""
+    """The table of :func:`avgs.evaluation.binaural.format_report` with T60 %, C50 dB, EDT s and the
+    spatial cues (onset ms, ITD us, early ILD dB, lateralisation %); one per split."""
     if "splits" in report:
         return "\n\n".join(format_report(r) for r in report["splits"].values())
     return format_table(report, columns=COLUMNS, unit="responses")
