@@ -122,6 +122,8 @@ class AcousticConfig:
     "AV-NeRF's optional time-frequency conv head on the ear magnitudes (avgs.acoustics.post_conv)."
     reverb_tail: bool = True
     "Add a learned late-reverberation tail to B's masks (avgs.acoustics.reverb_tail); off: the paper's masks only."
+    interaural_delay: bool = True
+    "Delay the ears by the spherical head's ITD of the source's direction, its scale fitted to the recordings (avgs.acoustics.interaural); off: both ears at once (the paper's)."
     use_context: bool = field(default=True, metadata={"flag": "context"})
     "Condition B on the scene context C from F (--no-context: the control model without it)."
     lambda_a: float = 1e-4
@@ -375,7 +377,7 @@ class SynthesisConfig:
 
 
 ADDED_LATER = {
-    "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False},
+    "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False, "interaural_delay": False},
     "gaussians": {"cpu_max_pixels": 0},
     "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0},
 }

@@ -443,8 +443,8 @@ OTHER_VALUES = [None, 0, -1, 2.5, math.nan, "x", True, [], {}, [1.0, 2.0, 3.0], 
 def _mutate(value, op: str, draw):
     if op == "other type":
         return copy.deepcopy(draw(st.sampled_from(OTHER_VALUES)))
-    if not isinstance(value, torch.Tensor):
-        return draw(st.sampled_from(OTHER_VALUES))
+    if not isinstance(value, torch.Tensor):  # a copy: a later mutation must not change OTHER_VALUES itself
+        return copy.deepcopy(draw(st.sampled_from(OTHER_VALUES)))
     if op in ("nan", "inf"):
         if not value.is_floating_point() or value.numel() == 0:
             return torch.full((2,), math.nan)

@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 import torch
 
+from avgs.config import STFT
 from avgs import dsp
 from avgs.acoustics.synthesis import Masks, ear_magnitudes, mid_phase_waveform, pose_parts, source_parts
 from avgs.config import MID_PHASE_ITERATIONS, SynthesisConfig
 from avgs.render.mid_phase_stream import MidPhaseStream
 
-F = dsp.STFT.n_freq
+F = STFT.n_freq
 
 
 def _noise(n, seed=0):
@@ -58,12 +59,12 @@ def test_a_clip_heard_from_many_poses_is_analysed_once(tail_checkpoint, monkeypa
     only does its own part, with the same output as a renderer that did not keep it; a
     changed clip (even changed in place by the caller) is analysed anew."""
     import avgs.acoustics.synthesis
-    import avgs.render.renderer
+    import avgs.render.binaural
     from avgs.render.renderer import SceneRenderer
 
     calls = []
     analyse = avgs.acoustics.synthesis.source_parts
-    for module in (avgs.render.renderer, avgs.acoustics.synthesis):
+    for module in (avgs.render.binaural, avgs.acoustics.synthesis):
         monkeypatch.setattr(module, "source_parts", lambda *a, **k: calls.append(1) or analyse(*a, **k))
     r, other = SceneRenderer(tail_checkpoint()), SceneRenderer(tail_checkpoint())
     x = _speech_like(22050, seed=4)
@@ -146,7 +147,7 @@ def test_blocks_of_any_size_give_the_render(tail_renderer, length):
     x = _speech_like(length, seed=length)
     pose = ((2.0, 1.0, 1.6), 45.0)
     one_shot = tail_renderer.render(*pose, x).binaural
-    m = tail_renderer._masks(*pose, None)[0]
+    m = tail_renderer.response(*pose).masks
     with torch.inference_mode():
         exact, _ = mid_phase_waveform(dsp.stft(torch.from_numpy(x.astype(np.float64))[None]), m.to(torch.float64), length)
     peak = max(1e-6, float(np.max(np.abs(one_shot))))

@@ -37,6 +37,7 @@ from torch.nn.functional import linear
 from avgs.acoustics.direction import DIRECTION_ENCODINGS, direction_dim, direction_feature
 from avgs.acoustics.encodings import encoded_dim, positional_encoding
 from avgs.acoustics.post_conv import PostConv
+from avgs.acoustics.interaural import DEFAULT_SCALE, ear_delays
 from avgs.acoustics.reverb_tail import ReverbTail
 from avgs.acoustics.synthesis import Masks
 from avgs.config import AcousticConfig
@@ -79,6 +80,10 @@ class Binauralizer(nn.Module):
         self.diff_head = nn.Linear(width, 1)
         self.post_conv = PostConv() if cfg.post_conv else None  # on the ear magnitudes: avgs.acoustics.synthesis
         self.reverb = ReverbTail(n_freq, width, hop_seconds) if cfg.reverb_tail else None
+        if cfg.interaural_delay:  # a / c of Woodworth's head, seconds: set from the recordings (avgs.train.binaural)
+            self.register_buffer("itd_scale", torch.tensor(DEFAULT_SCALE))
+        else:
+            self.itd_scale = None
 
     def direction_feature(self, theta: torch.Tensor) -> torch.Tensor:
         """theta [B] radians -> e [B, direction_dim]."""
@@ -128,8 +133,9 @@ class Binauralizer(nn.Module):
                 g = torch.addmm(layer.bias, g, layer.weight.t()).relu_()
         g = g + h  # [B F, W] residual
         difference = 2.0 * torch.sigmoid((g @ self.diff_head.weight.t()).view(B, F) + self.diff_head.bias) - 1.0  # [B, F]
+        delay = None if self.itd_scale is None else ear_delays(theta, self.itd_scale)  # [B, 2] seconds
         if self.reverb is None:
-            return Masks(mixture, difference)
+            return Masks(mixture, difference, delay=delay)
         gains = self.reverb.gains(g.view(B, F, W))  # [B, 2, F]
         decay = self.reverb.decay()  # [F]
-        return Masks(mixture, difference, gains, decay if bins is None else decay[bins])
+        return Masks(mixture, difference, gains, decay if bins is None else decay[bins], delay=delay)

@@ -7,7 +7,8 @@ becomes FFT convolution (:func:`convolve`, and block by block
 
 - **Direct part**: per ear, the minimum-phase filter whose magnitude is the ear's gain
   ``g_ear = m_m (1 +- m_d)`` at the STFT's bin frequencies (:func:`minimum_phase`): the
-  same magnitude response as ``|S| g_ear``, causal, no delay.
+  same magnitude response as ``|S| g_ear``, causal, delayed by the ear's share of the
+  interaural time difference (``Masks.delay``, :mod:`avgs.acoustics.interaural`).
 - **Reverberant tail** (models with :mod:`avgs.acoustics.reverb_tail`): per ear, noise
   whose power in bin f decays by ``w_f`` per STFT hop, starting one hop after the direct
   sound, scaled by the ear's reverberant gain ``r_ear``. In expectation the output's STFT
@@ -54,8 +55,9 @@ TAIL_SEED = 20231123
 "Seed of the tail's noise: fixed, so a render is a deterministic function of the pose."
 
 
-def minimum_phase(gain: torch.Tensor, n_fft: int, oversample: int = OVERSAMPLE) -> torch.Tensor:
-    """Minimum-phase impulse responses ``[..., n_fft]`` whose magnitude is ``gain [..., n_fft // 2 + 1]`` (>= 0).
+def minimum_phase(gain: torch.Tensor, n_fft: int, oversample: int = OVERSAMPLE, delay: torch.Tensor | None = None) -> torch.Tensor:
+    """Minimum-phase impulse responses ``[..., n_fft]`` whose magnitude is ``gain [..., n_fft // 2 + 1]`` (>= 0),
+    each delayed by ``delay`` [...] samples (fractional: a linear phase on the fine grid; None: none).
 
     Homomorphic design (Oppenheim & Schafer, ch. 13): the log magnitude, linearly
     interpolated onto a grid ``oversample`` times finer, its real cepstrum folded onto
@@ -75,7 +77,11 @@ def minimum_phase(gain: torch.Tensor, n_fft: int, oversample: int = OVERSAMPLE) 
     fold[0] = 1.0
     fold[1 : n_fine // 2] = 2.0
     fold[n_fine // 2] = 1.0
-    h = torch.fft.irfft(torch.exp(torch.fft.rfft(cepstrum * fold, n_fine)), n_fine)[..., :n_fft]
+    spectrum = torch.exp(torch.fft.rfft(cepstrum * fold, n_fine))  # [..., n_fine // 2 + 1]
+    if delay is not None:
+        k = torch.arange(n_fine // 2 + 1, dtype=cepstrum.dtype, device=cepstrum.device)
+        spectrum = spectrum * torch.polar(torch.ones_like(k), (-2.0 * math.pi / n_fine) * k * delay.to(cepstrum)[..., None])
+    h = torch.fft.irfft(spectrum, n_fine)[..., :n_fft]
     fade = torch.ones(n_fft, dtype=h.dtype, device=h.device)
     taper = n_fft // 8  # the last taps, faded out: the cut leaves no step
     fade[-taper:] = 0.5 + 0.5 * torch.cos(torch.linspace(0.0, math.pi, taper, dtype=h.dtype, device=h.device))
@@ -155,7 +161,8 @@ def impulse_response(masks: Masks, stft: STFTConfig = STFT, tail: TailShaper | N
     :class:`TailShaper` for ``masks.decay`` (made here when not given; cache it per scene).
     """
     gains = ear_gains(masks.mixture.detach().double().cpu(), masks.difference.detach().double().cpu())  # [B, 2, F]
-    direct = minimum_phase(gains, stft.n_fft)  # [B, 2, n_fft]
+    delay = None if masks.delay is None else masks.delay.detach().double().cpu() * stft.sample_rate  # [B, 2] samples
+    direct = minimum_phase(gains, stft.n_fft, delay=delay)  # [B, 2, n_fft]
     if masks.reverb is None:
         return direct
     tail = tail if tail is not None else TailShaper(masks.decay, stft)

@@ -25,6 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
+from avgs.acoustics.interaural import phase_ramp
 from avgs.acoustics.reverb_tail import fill_phase, tail_power
 from avgs.config import STFT, STFTConfig, SynthesisConfig
 from avgs.dsp.kernels import decayed_power, project_magnitudes
@@ -41,6 +42,7 @@ class Masks:
     decay: torch.Tensor | None = None  # [F] the tail's power decay per frame (scene-wide); with reverb
     listener_vicinity: torch.Tensor | None = None  # [B, k] int64 indices into the audio points
     source_vicinity: torch.Tensor | None = None  # [k] int64
+    delay: torch.Tensor | None = None  # [B, 2] seconds each ear hears the pose late (avgs.acoustics.interaural); None: none
 
     def __post_init__(self):
         if (self.reverb is None) != (self.decay is None):
@@ -55,7 +57,13 @@ class Masks:
             return None if t is None else t.detach().to(device=device, dtype=dtype)
 
         return replace(self, mixture=f(self.mixture), difference=f(self.difference), reverb=f(self.reverb),
-                       decay=f(self.decay))
+                       decay=f(self.decay), delay=f(self.delay))
+
+
+def ear_ramp(masks: Masks, stft: STFTConfig, dtype: torch.dtype = torch.complex64) -> torch.Tensor | None:
+    """The ears' delays as phase ramps ``[B, 2, F]`` (:func:`~avgs.acoustics.interaural.phase_ramp`),
+    or None for masks without delays."""
+    return None if masks.delay is None else phase_ramp(masks.delay, stft, dtype).to(masks.mixture.device)
 
 
 def ear_gains(mixture: torch.Tensor, difference: torch.Tensor) -> torch.Tensor:
@@ -150,7 +158,7 @@ def start_phase(spec: torch.Tensor, power: torch.Tensor, first_frame: int = 0, t
 
 
 def ear_spectrogram(mono_stft: torch.Tensor, masks: Masks, post_conv=None, first_frame: int = 0,
-                    phase: torch.Tensor | None = None) -> torch.Tensor:
+                    phase: torch.Tensor | None = None, stft: STFTConfig = STFT) -> torch.Tensor:
     """The predicted complex spectrogram of both ears: ear magnitudes with the source's phase, or with ``phase``.
 
     mono_stft: [B, F, N_t] complex -> [B, 2, F, N_t] complex. Its magnitudes are what B is
@@ -159,22 +167,26 @@ def ear_spectrogram(mono_stft: torch.Tensor, masks: Masks, post_conv=None, first
     frame 0 when ``mono_stft`` is a stretch of a longer signal (for the tail's fill phase).
     ``phase``: unit phasors [B, 2, F, N_t] to use instead of the source's, such as those of the
     input through the pose's filter (:func:`avgs.acoustics.impulse_response.filter_phase`;
-    the mask model only).
+    the mask model only), which holds the ears' delays; otherwise each ear is delayed by the
+    masks' ``delay`` (phase ramps at ``stft``'s bin frequencies).
     """
-    if phase is not None:
+    if phase is not None:  # the filter's phase already holds the ears' delays
         if post_conv is not None:
             raise ValueError("a given phase needs the mask model; the conv head takes the source's phase")
         _, s_l, s_r = ear_magnitudes(mono_stft.abs(), masks)
         return torch.stack([s_l, s_r], dim=1) * phase  # [B, 2, F, N_t]
+    ramp = ear_ramp(masks, stft, mono_stft.dtype)  # [B, 2, F]: the ears' delays, or None
     if post_conv is None and masks.reverb is None:
         # |S| g e^{i phase(S)} = S g: the gains scale the source spectrum, keeping its phase.
-        return mono_stft[:, None] * ear_gains(masks.mixture, masks.difference)[..., None]  # [B, 2, F, N_t]
+        ears = mono_stft[:, None] * ear_gains(masks.mixture, masks.difference)[..., None]  # [B, 2, F, N_t]
+        return ears if ramp is None else ears * ramp[..., None]
     mag = mono_stft.abs()  # [B, F, N_t]
     _, s_l, s_r = ear_magnitudes(mag, masks)
     if post_conv is not None:
         s_l, s_r = post_conv(mag, masks.mixture, masks.difference, s_l, s_r)
     phase = source_phase(mono_stft, first_frame, tail=masks.reverb is not None)  # [B, F, N_t]
-    return torch.stack([s_l, s_r], dim=1) * phase[:, None]  # [B, 2, F, N_t]
+    ears = torch.stack([s_l, s_r], dim=1) * phase[:, None]  # [B, 2, F, N_t]
+    return ears if ramp is None else ears * ramp[..., None]
 
 
 def waveform(spec: torch.Tensor, length: int, stft: STFTConfig = STFT, synthesis: SynthesisConfig | None = None):
@@ -190,7 +202,7 @@ def binaural_waveform(
     synthesis: SynthesisConfig | None = None, phase: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """:func:`waveform` of :func:`ear_spectrogram`: [B, 2, length] (channel 0 = left)."""
-    return waveform(ear_spectrogram(mono_stft, masks, post_conv, phase=phase), length, stft, synthesis)
+    return waveform(ear_spectrogram(mono_stft, masks, post_conv, phase=phase, stft=stft), length, stft, synthesis)
 
 
 @dataclass(frozen=True)
@@ -245,11 +257,16 @@ def mid_phase_parts(mono_stft: torch.Tensor, masks: Masks, first_frame: int = 0,
     return pose_parts(source_parts(mono_stft, masks.decay, first_frame, tail), masks)
 
 
-def shared_phase_waveform(ears: torch.Tensor, phase: torch.Tensor, length: int, stft: STFTConfig = STFT) -> torch.Tensor:
+def shared_phase_waveform(ears: torch.Tensor, phase: torch.Tensor, length: int, stft: STFTConfig = STFT,
+                          ramp: torch.Tensor | None = None) -> torch.Tensor:
     """Waveforms [..., 2, length] of the ears' magnitudes ``ears`` [..., 2, N, F] with one phase
-    ``phase`` [..., N, F] (unit phasors, frame-major) for both."""
+    ``phase`` [..., N, F] (unit phasors, frame-major) for both, each ear delayed by ``ramp``
+    (phase ramps broadcasting to [..., 2, N, F]: :func:`ear_ramp` [..., 2, 1, F]; None: no delay)."""
     grid = frame_grid(phase.shape[-2], stft, ears.dtype, str(ears.device))
-    return grid.waveform(grid.synthesise((ears * phase.unsqueeze(-3)).contiguous()), length)
+    spec = ears * phase.unsqueeze(-3)  # [..., 2, N, F]
+    if ramp is not None:
+        spec = spec * ramp
+    return grid.waveform(grid.synthesise(spec.contiguous()), length)
 
 
 def mid_phase_waveform(
@@ -273,4 +290,6 @@ def mid_phase_waveform(
         source = source_parts(mono_stft, masks.decay, first_frame)
     start, mid, ears = pose_parts(source, masks)  # frame-major
     phase = retrieve_phase(mid, start, length, synthesis.iterations, synthesis.phase_momentum, stft)  # [B, N, F]
-    return shared_phase_waveform(ears, phase, length, stft), ears.transpose(-1, -2)
+    ramp = ear_ramp(masks, stft)  # [B, 2, F] or None
+    return (shared_phase_waveform(ears, phase, length, stft, None if ramp is None else ramp.unsqueeze(-2)),
+            ears.transpose(-1, -2))

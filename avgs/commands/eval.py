@@ -1,9 +1,12 @@
 """``avgs eval DATA_ROOT``: score baselines and checkpoints, per scene, per environment and overall.
 
-Binaural task (default, ``--task binaural``): MAG, ENV, ILD error and MAGp on the val
-clips of scenes in the RWAVS layout. RIR task (``--task rir``): T60 %, C50 dB and EDT s of
-predicted impulse responses on the val and/or held-out-source responses of impulse-response
-scenes (``rir/index.json``); DATA_ROOT may then be several data roots or scene folders.
+Binaural task (default, ``--task binaural``): MAG, ENV, ILD error, MAGp, the median ITD error
+(us) and the lateralisation agreement (%) on the val clips of scenes in the RWAVS layout. RIR
+task (``--task rir``): T60 %, C50 dB, EDT s, and the median onset (ms), direct-sound ITD (us) and
+early ILD (dB) errors and the lateralisation agreement of predicted impulse responses on the val
+and/or held-out-source responses of impulse-response scenes (``rir/index.json``); DATA_ROOT may
+then be several data roots or scene folders. Definitions: docs/design.md ("Metrics and
+baselines", "Spatial cues").
 
 Prints a table per scene, per environment and overall (mean of the environment means,
 as RWAVS); ``--json`` (or ``--out``) writes the same numbers. A scene's environment comes
@@ -24,8 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Folder of scenes in the RWAVS layout (with position.json); --task rir: data roots or "
                              "scene folders, one or more.")
     parser.add_argument("--task", choices=tuple(TASKS), default=DEFAULT,
-                        help="binaural: MAG, ENV, ILD, MAGp of binaural clips (default); rir: T60 %%, C50 dB, EDT s "
-                             "of impulse responses.")
+                        help="binaural: MAG, ENV, ILD, MAGp, ITD, LAT of binaural clips (default); rir: T60 %%, C50 dB, "
+                             "EDT s, onset, ITD, ILD, LAT of impulse responses.")
     parser.add_argument(
         "--method",
         action="append",

@@ -1,6 +1,8 @@
 """Scoring: metrics, baselines, codecs and the per-task evaluation over scenes.
 
-- :mod:`.metrics`: MAG, ENV, ILD, T60, C50, EDT as pure functions (docs/design.md, "Metrics and baselines").
+- :mod:`.metrics`: MAG, ENV, ILD, T60, C50, EDT as pure functions (docs/design.md, "Metrics and baselines");
+  :mod:`.spatial`: the cues of direction and distance, ITD (GCC-PHAT), onset, early ILD, lateralisation
+  (docs/design.md, "Spatial cues").
 - :mod:`.methods`, :mod:`.baselines`: what a benchmark method is; Mono-Mono, Mono-Energy,
   Stereo-Energy, Oracle-Mask.
 - :mod:`.binaural`: the binaural task's scoring (per scene, environment, overall).

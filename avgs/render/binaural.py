@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -84,7 +85,7 @@ class BinauralTaskModel:
         warnings.warn(f"the ear filter at this pose gains {peak_db:.1f} dB in its loudest bin; scaled to "
                       f"the {HEADROOM_DB:g} dB headroom", HeadroomLimited, stacklevel=5)  # the caller of render() etc.
         reverb = None if m.reverb is None else m.reverb * c
-        return Masks(m.mixture * c, m.difference, reverb, m.decay, m.listener_vicinity, m.source_vicinity), power * (c * c)
+        return replace(m, mixture=m.mixture * c, reverb=reverb), power * (c * c)
 
     def impulse(self, m: Masks) -> np.ndarray:
         """The binaural impulse response ``[2, L]`` float32 of one pose's masks."""
@@ -132,7 +133,7 @@ class BinauralTaskModel:
                 continue
             if filtered is None:  # the source's phase
                 ears = ear_spectrogram(dsp.stft(piece[None], self.stft), m32, self.post_conv,
-                                       start // self.stft.hop_length)  # [1, 2, F, N]
+                                       start // self.stft.hop_length, stft=self.stft)  # [1, 2, F, N]
             else:  # the predicted magnitudes with the filter's phase: the input and its filtered copy in one STFT
                 both = torch.cat([piece[None], filtered[:, start:stop].to(self.device)])  # [3, stop - start]
                 spec = dsp.stft(both, self.stft)  # [3, F, N]

@@ -31,7 +31,7 @@ import torch
 from avgs import dsp
 from avgs.acoustics.convolution import mono_block
 from avgs.acoustics.reverb_tail import tail_power_recursive
-from avgs.acoustics.synthesis import Masks, mid_phase_parts, mid_phase_waveform, shared_phase_waveform
+from avgs.acoustics.synthesis import Masks, ear_ramp, mid_phase_parts, mid_phase_waveform, shared_phase_waveform
 from avgs.config import STFT, STFTConfig, SynthesisConfig
 from avgs.dsp.phase_retrieval import FrameGrid, retrieve_phase
 from avgs.render.streaming import one_pose
@@ -72,6 +72,7 @@ class MidPhaseStream:
         self._start = torch.zeros(0, n_freq, dtype=torch.complex64)  # [N, F] s_m with the source's phase
         self._mid = torch.zeros(0, n_freq)  # [N, F] s_m
         self._ears = torch.zeros(2, 0, n_freq)  # [2, N, F] s_l, s_r
+        self._ramp = None if self.masks.delay is None else torch.zeros(2, 0, n_freq, dtype=torch.complex64)  # [2, N, F] the ears' delays
         self._tail_state = None  # [1, F]: decayed source power of the frames so far
         self._final = 0  # frames whose output is out: samples before _final * hop are emitted
         self._started = False
@@ -105,6 +106,9 @@ class MidPhaseStream:
         self._start = torch.cat([self._start, start[0]])
         self._mid = torch.cat([self._mid, mid[0]])
         self._ears = torch.cat([self._ears, ears[0]], dim=1)
+        if self._ramp is not None:  # each frame delays the ears as its pose says
+            ramp = ear_ramp(masks, self.stft)[0]  # [2, F]
+            self._ramp = torch.cat([self._ramp, ramp[:, None, :].expand(2, t1 - t0, ramp.shape[-1])], dim=1)
         self._next_frame = t1
 
     def _retrieve(self, s: int, e: int, b: int, length: int | None) -> np.ndarray:
@@ -117,7 +121,8 @@ class MidPhaseStream:
         mid, ears = self._mid[lo:hi], self._ears[:, lo:hi]
         phase = retrieve_phase(mid, self._start[lo:hi], piece_len, self._iterations, self.synthesis.phase_momentum,
                                self.stft)  # [b - a, F]
-        y = shared_phase_waveform(ears, phase, piece_len, self.stft)  # [2, piece_len]
+        ramp = None if self._ramp is None else self._ramp[:, lo:hi]
+        y = shared_phase_waveform(ears, phase, piece_len, self.stft, ramp)  # [2, piece_len]
         out_hi = e * hop if length is None else length
         return y[:, s * hop - a * hop : out_hi - a * hop].numpy()
 
@@ -137,6 +142,8 @@ class MidPhaseStream:
         if keep > self._f0:
             cut = keep - self._f0
             self._start, self._mid, self._ears = self._start[cut:], self._mid[cut:], self._ears[:, cut:]
+            if self._ramp is not None:
+                self._ramp = self._ramp[:, cut:]
             self._f0 = keep
 
     def _take(self, x: np.ndarray) -> np.ndarray:

@@ -303,6 +303,13 @@ class SceneRenderer:
             self._source_cache = (key, self.model.source_context(source, self.cache))
         return self._source_cache[1]
 
+    def response(self, listener, yaw: float, source=None, impulse: bool = False) -> Response:
+        """The task model's :class:`~avgs.render.tasks.Response` of a pose (tensors in the model's
+        terms: B's masks for the binaural task, each ear's gains, the vicinity sets; ``impulse``:
+        also the pose's filter). For tests and benchmarks; :meth:`masks` is the public result."""
+        with self._lock, torch.inference_mode():
+            return self._response(listener, yaw, source, impulse)[1]
+
     def _response(self, listener, yaw: float, source, impulse: bool = False) -> tuple[Pose, Response]:
         """The pose and its task model's response (call under the lock and inference mode)."""
         pose = self._pose(listener, yaw, source)

@@ -46,8 +46,8 @@ def one_pose(masks: Masks, stft: STFTConfig, dtype: torch.dtype, like: Masks | N
         shapes += [tuple(masks.reverb.shape[::2]), (1, *masks.decay.shape)]
     if any(shape != (1, stft.n_freq) for shape in shapes):
         raise ValueError(f"a stream takes the masks of one pose, [1, {stft.n_freq}] for n_fft {stft.n_fft}; got {shapes}")
-    if like is not None and (masks.decay is None) != (like.decay is None):
-        raise ValueError("set_pose: the new masks must come from the same scene (with or without a tail)")
+    if like is not None and ((masks.decay is None) != (like.decay is None) or (masks.delay is None) != (like.delay is None)):
+        raise ValueError("set_pose: the new masks must come from the same scene (with or without a tail and ear delays)")
     return masks.to(dtype, "cpu")
 
 

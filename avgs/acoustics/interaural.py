@@ -1,0 +1,95 @@
+"""The interaural time difference: when each ear hears the direct sound, from the source's direction.
+
+A listener localises a source first by the interaural time difference (ITD) below about
+1.5 kHz. B predicts magnitudes only, so the ears' timing comes from geometry, as binaural
+synthesis does in the field (a time warp from the source's direction relative to the head,
+then learned amplitudes: Richard et al., ICLR 2021): the spherical head of Woodworth,
+
+    tau = (a / c) (phi + sin phi),      phi = asin(sin theta)  (the lateral angle, in [-pi/2, pi/2])
+
+with theta the signed direction to the source (positive on the listener's left,
+:func:`avgs.data.frame.signed_direction`), a the head's radius and c the speed of sound:
+``tau > 0`` means the source is on the left and the right ear hears it ``tau`` seconds after
+the left. A source behind the head has the ITD of its mirror image in front (the lateral
+angle), as a sphere gives. ``a / c`` (the ITD scale, seconds; 255 us for a = 8.75 cm) is the
+one number the model learns: :func:`fit_scale` takes it from the ITDs the training
+recordings themselves carry (their GCC-PHAT lags against the Woodworth shape), which holds
+the recording head's size and the frequency band the cue lives in.
+
+The ears get delays ``(max(0, -tau), max(0, tau))``: the lagging ear is delayed, the leading
+one not, so a filter stays causal. In the STFT domain a delay d is the phase ramp
+``exp(-i 2 pi f d)`` per bin (:func:`phase_ramp`), exact for a stationary signal and within
+a few percent of a window for the sub-millisecond delays here.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from avgs.config import STFTConfig
+
+HEAD_RADIUS = 0.0875
+"Metres: the spherical head of Woodworth's formula (an adult's, about KEMAR's)."
+
+SPEED_OF_SOUND = 343.0
+"Metres per second."
+
+DEFAULT_SCALE = HEAD_RADIUS / SPEED_OF_SOUND
+"Seconds: ``a / c`` of the default head (255 us; the ITD at 90 degrees is 2.57 times it, 656 us)."
+
+FIT_MIN_LATERAL = math.radians(15.0)
+"Recordings whose source is within this of the median plane say little about the scale; the fit leaves them out."
+
+
+def lateral_angle(theta: torch.Tensor) -> torch.Tensor:
+    """``asin(sin theta)`` [...]: the angle from the median plane, in [-pi/2, pi/2], positive on the left."""
+    return torch.asin(torch.sin(theta).clamp(-1.0, 1.0))
+
+
+def woodworth_shape(theta: torch.Tensor) -> torch.Tensor:
+    """``phi + sin phi`` [...] of the signed direction ``theta`` [...] (radians): the ITD in units of ``a / c``."""
+    phi = lateral_angle(theta)
+    return phi + torch.sin(phi)
+
+
+def interaural_delay(theta: torch.Tensor, scale) -> torch.Tensor:
+    """``tau`` [...] seconds: the right ear's arrival after the left's (> 0: the source is on the left)."""
+    return woodworth_shape(theta) * scale
+
+
+def ear_delays(theta: torch.Tensor, scale) -> torch.Tensor:
+    """Each ear's delay ``[..., 2]`` seconds (left, right) for directions ``theta`` [...]: the lagging ear by |tau|."""
+    tau = interaural_delay(theta, scale)
+    return torch.stack([(-tau).clamp_min(0.0), tau.clamp_min(0.0)], dim=-1)
+
+
+def phase_ramp(delays: torch.Tensor, stft: STFTConfig, dtype: torch.dtype = torch.complex64) -> torch.Tensor:
+    """``exp(-i 2 pi f d)`` ``[..., 2, F]`` for ear delays ``delays`` [..., 2] (seconds) at the STFT's bin frequencies."""
+    real = torch.float64 if dtype == torch.complex128 else torch.float32
+    freqs = torch.linspace(0.0, stft.sample_rate / 2.0, stft.n_freq, dtype=torch.float64, device=delays.device)  # [F]
+    angle = (-2.0 * math.pi) * delays.double()[..., None] * freqs  # [..., 2, F]
+    return torch.polar(torch.ones_like(angle, dtype=real), angle.to(real))
+
+
+def fit_scale(theta, itd, default: float = DEFAULT_SCALE) -> float:
+    """The ITD scale ``a / c`` (seconds) that fits measured ITDs to Woodworth's shape.
+
+    ``theta`` [M]: each recording's signed direction (radians); ``itd`` [M]: its measured ITD
+    in seconds in the metric's sign (negative when the left ear leads:
+    :func:`avgs.evaluation.spatial.itd`), so ``tau = -itd``. Least squares through the
+    origin over the recordings at least :data:`FIT_MIN_LATERAL` off the median plane whose
+    measured ITD has the sign of their side (a lag that reverberation won is left out);
+    ``default`` when fewer than three remain or the fit is not positive.
+    """
+    shape = woodworth_shape(torch.as_tensor(np.asarray(theta, dtype=np.float64))).numpy()  # [M]
+    tau = -np.asarray(itd, dtype=np.float64)
+    keep = (np.abs(np.arcsin(np.clip(np.sin(np.asarray(theta, dtype=np.float64)), -1, 1))) >= FIT_MIN_LATERAL) \
+        & (np.sign(tau) == np.sign(shape)) & np.isfinite(tau)
+    if keep.sum() < 3:
+        return float(default)
+    s, t = shape[keep], tau[keep]
+    scale = float(np.dot(s, t) / np.dot(s, s))
+    return scale if math.isfinite(scale) and scale > 0 else float(default)
