@@ -203,7 +203,7 @@ def drive(w, gui: GuiCall, x, n: int = 30, idle_s: float = 5.0, orbit_s: float =
     x.release(x0 + 120 * np.sin(2 * np.pi * k / 150), y0 - 40 * (1 - np.cos(2 * np.pi * k / 150)))
     time.sleep(0.5)
     gui(lambda: (w.view.camera_home(), w.plotter.render()))
-    followed = gui(lambda: bool(w._follower))
+    followed = gui(lambda: bool(w.mouse.follower))
     return {"pointer_follow": followed, "drag_to_audio": _summary(latency), "release_delivery": _summary(delivery),
             "drag_to_full_render": _summary(full) if refines else None, "full_render_missed": full_missed,
             "pose_submitted": _summary(submitted), "filter_ready": _summary(ready), "paint": _summary(paints), "drags": n,

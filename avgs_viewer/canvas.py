@@ -56,7 +56,7 @@ class SceneCanvas(QtInteractor):
         self._render_observer = iren.AddObserver("RenderEvent", self._vtk_render_requested)
         self._vtk_iren = iren
         self.hold: Callable[[], bool] | None = None
-        "True while the audio path is busy: repaints wait (the window sets it)."
+        "True while the audio path is busy: repaints wait (the window's audio path sets it)."
         self._held_since: float | None = None
         self._retry = QtCore.QTimer(self)
         self._retry.setSingleShot(True)

@@ -23,7 +23,8 @@ HANDLES = ("listener", "source")
 
 PoseAt = Callable[[float, float], Pose | None]
 """Display pixel (x, y) -> the pose a drag's move there makes (None: off the plane), from
-:meth:`DragController.follow_map`; the window hands its poses to ``LiveAudio.request``."""
+:meth:`DragController.follow_map`; the window's mouse (:mod:`avgs_viewer.mouse`) hands its poses to
+``LiveAudio.request``."""
 
 
 class Projector(Protocol):

@@ -1,5 +1,5 @@
-"""Every key and mouse action of the explorer, in one table: the window binds its keys from
-it and the Help dialog (F1) lists it, so the two cannot disagree.
+"""Every key and mouse action of the explorer, in one table: the window's menus (:mod:`avgs_viewer.menus`)
+bind their keys from it and the Help dialog (F1) lists it, so the two cannot disagree.
 
 VTK's own keys are switched off (:func:`avgs_viewer.scene_view.disable_vtk_keys`): the keys
 here are the only ones. No Qt here.

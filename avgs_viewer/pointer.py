@@ -34,8 +34,9 @@ POLL_SECONDS = 0.002
 ToDisplay = Callable[[int, int], tuple[float, float]]
 "Root (screen) pixels -> display pixels of the 3D view (VTK's convention, origin bottom left)."
 Moved = Callable[[float, float, bool], None]
-"""``moved(x, y, final)``: the pointer at display pixel (x, y); ``final`` for the release (the window
-maps it through :data:`avgs_viewer.drag.PoseAt` to a pose for ``LiveAudio.request``)."""
+"""``moved(x, y, final)``: the pointer at display pixel (x, y); ``final`` for the release (the window's
+mouse, :mod:`avgs_viewer.mouse`, maps it through :data:`avgs_viewer.drag.PoseAt` to a pose for
+``LiveAudio.request``)."""
 Failed = Callable[[BaseException], None]
 "The X server stopped answering: the drag is Qt's alone from then on."
 

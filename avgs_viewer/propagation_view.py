@@ -548,7 +548,7 @@ class MapControls:
 
 def _load_listener_view(path):
     """:meth:`avgs.render.listener_view.ListenerView.load`, with no garbage collection while it runs: a
-    collection on a worker thread could delete Qt or VTK objects off the GUI thread (window.py)."""
+    collection on a worker thread could delete Qt or VTK objects off the GUI thread (loading.py)."""
     import gc
 
     from avgs.render.listener_view import ListenerView

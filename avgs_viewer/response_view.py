@@ -3,7 +3,7 @@
 Drawn with QPainter from a :class:`~avgs_viewer.response.ResponseSummary` (no plotting
 library: a repaint costs a few ms of opaque pens and a few hundred points, where a matplotlib
 figure costs tens of ms, on the GUI thread that also carries the drags). It repaints only when
-it is handed a new response or resized, never while idle: the window hands it the response
+it is handed a new response or resized, never while idle: the window's audio path hands it the response
 of each pose the audio engine plays, at most every 150 ms while a handle moves (and the
 reverberation time, the costliest number, once the move ends).
 

@@ -10,8 +10,8 @@ response) goes straight to the audio engine, which switches to it at its next bl
 Where the renderer's own synthesis is not that filter (a binaural-task model), a pose that
 holds is then rendered in full, loop and all, and the engine crossfades to it
 (:mod:`avgs_viewer.refine`): moving, one hears the filter; settled, what ``avgs render`` writes.
-No Qt here: results come back through plain callbacks on the worker thread; the window
-forwards them to its own thread with a queued signal.
+No Qt here: results come back through plain callbacks on the worker thread; the window's
+audio path (:mod:`avgs_viewer.audio_path`) forwards them to the GUI thread with a queued signal.
 """
 
 from __future__ import annotations
@@ -72,7 +72,7 @@ class LiveAudio:
 
     ``renderer``: the scene (:class:`~avgs_viewer.trained_scene.TrainedScene`, an ``avgs.SceneRenderer``);
     ``on_result(heard)`` is called on the worker thread once the engine has the new filter
-    (the window forwards it to the GUI thread for the vicinity colours and levels). The
+    (the window's audio path forwards it to the GUI thread for the vicinity colours and levels). The
     pose event reaches this object before anything is drawn (the window draws on demand,
     after the event returns). :meth:`set_clip` changes the looped clip; its tail is
     crossfaded into its head over ``seam_seconds`` so the loop has no seam.

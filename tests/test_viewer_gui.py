@@ -14,7 +14,8 @@ from avgs.acoustics.points import AudioPoints  # noqa: E402
 from avgs.train.pipeline import quick_config, train_scene  # noqa: E402
 from avgs_viewer import colors  # noqa: E402
 from avgs_viewer.refine import SEAM_SECONDS, periods_before  # noqa: E402
-from avgs_viewer.window import HEARD_TEXT, MainWindow  # noqa: E402
+from avgs_viewer.control_panel import HEARD_TEXT  # noqa: E402
+from avgs_viewer.window import MainWindow  # noqa: E402
 from rwavs_writer import write_scene  # noqa: E402
 
 pytestmark = pytest.mark.gui
@@ -59,7 +60,7 @@ def wait_render(qtbot, w: MainWindow) -> None:
         assert live.worker.wait_idle(0.01)
         assert live.last_request is not None and live.last_request.pose == w.state.pose
         assert w.panel.levels.text().startswith("L ")
-        assert w._shown_heard is live.heard and not w._show_timer.isActive()  # shown on screen
+        assert w.audio_path._shown_heard is live.heard and not w.audio_path._show_timer.isActive()  # shown on screen
     qtbot.waitUntil(done, timeout=30_000)
     QtWidgets.QApplication.processEvents()
 
@@ -213,8 +214,8 @@ def test_no_sound_card_is_reported_in_the_status_bar(window):
     assert window.audio_status.text().startswith("No audio")
     assert window.live.last_result is not None and window.output.running  # a simulated clock plays instead
     # The meters show the engine's output, as a sound card would get it.
-    window._meters_shown = None
-    window._update_meters()
+    window.audio_path._meters_shown = None
+    window.audio_path._update_meters()
     left, right = window.engine.block_levels  # (the music moves between blocks: within 12 dB)
     assert abs(window.panel.meter_left.value() - 10 * max(left, -60.0)) <= 120
     assert abs(window.panel.meter_right.value() - 10 * max(right, -60.0)) <= 120

@@ -254,7 +254,7 @@ def test_meters_are_labelled_and_no_sound_card_is_said_in_plain_words(window):
     w = window
     assert [label.text() for label in w.panel.meter_labels] == ["<b>L</b>", "<b>R</b>"]
     assert w.audio_status.text().startswith("Audio output off")  # this window was opened without audio
-    from avgs_viewer.window import audio_status_text
+    from avgs_viewer.audio_path import audio_status_text
 
     text = audio_status_text("No audio device: Error querying device -1", 22050)
     assert text.startswith("No audio: no sound card found") and "Error" not in text and "-1" not in text

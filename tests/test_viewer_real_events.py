@@ -54,7 +54,7 @@ def settle(qtbot, w: MainWindow) -> None:
         assert w.live.worker.wait_idle(0.01)
         assert w.live.heard is not None and w.live.heard.request.seq == w.live.seq
         assert w.engine.live_tag == w.live.seq  # its blocks are leaving the engine
-        assert not w._show_timer.isActive()
+        assert not w.audio_path._show_timer.isActive()
     qtbot.waitUntil(done, timeout=30_000)
     qtbot.wait(100)
 
@@ -239,7 +239,7 @@ def test_the_sound_follows_a_drag_while_the_gui_thread_is_busy(qtbot, window, x)
     import threading
 
     w = window
-    if not w._follower and w._follower is not None:
+    if not w.mouse.follower and w.mouse.follower is not None:
         pytest.skip("no X pointer to follow on this platform")
     z = w.state.listener[2]
     source = w.state.source
@@ -249,7 +249,7 @@ def test_the_sound_follows_a_drag_while_the_gui_thread_is_busy(qtbot, window, x)
     start, end = screen_xy(w, w.state.listener), screen_xy(w, target)
     x.press(*start)
     qtbot.waitUntil(lambda: w.drag.dragging == "listener", timeout=5000)
-    assert w._follower, "the press came through X: the pointer is followed"
+    assert w.mouse.follower, "the press came through X: the pointer is followed"
     x.move(0.5 * (start[0] + end[0]), 0.5 * (start[1] + end[1]))
     qtbot.wait(50)
     seq_before = w.live.seq

@@ -67,7 +67,7 @@ def wait_shown(qtbot, w: MainWindow) -> None:
         live = w.live
         assert live.worker.wait_idle(0.01)
         assert live.last_request is not None and live.last_request.pose == w.state.pose
-        assert w._shown_heard is live.heard and not w._show_timer.isActive()
+        assert w.audio_path._shown_heard is live.heard and not w.audio_path._show_timer.isActive()
         summary = w.response.summary
         assert summary is not None and np.array_equal(summary.impulse, live.heard.result.impulse)
     qtbot.waitUntil(done, timeout=30_000)

@@ -1,0 +1,48 @@
+"""A checkpoint loaded on a background thread, handed to the GUI thread by a queued signal.
+
+The model never loads on the GUI thread: torch is first imported on the loading thread, so
+the window shows before it is. Every failure becomes a message (the window shows it in a
+dialog), never a crash.
+"""
+
+from __future__ import annotations
+
+import gc
+import threading
+import traceback
+from pathlib import Path
+
+import numpy as np
+from PySide6 import QtCore
+
+
+class SceneLoader(QtCore.QObject):
+    """:meth:`load` a checkpoint on a thread of its own; ``loaded`` or ``load_failed`` on the GUI thread."""
+
+    loaded = QtCore.Signal(object, object)      # (path, SceneRenderer)
+    load_failed = QtCore.Signal(object, str)    # (path, message)
+
+    def load(self, path: Path) -> None:
+        def load() -> None:
+            # A garbage collection run on this thread could delete Qt or VTK objects (a closed
+            # window's cycles) off the GUI thread, which aborts the process: none runs while loading.
+            collecting = gc.isenabled()
+            gc.disable()
+            try:
+                from avgs import SceneRenderer  # torch is imported here, off the GUI thread
+                from avgs.evaluation.metrics import rt60
+
+                renderer = SceneRenderer.load(path)
+                rt60(np.zeros(1))  # its imports too (the response panel's T60), not on the GUI thread
+            except Exception as exc:  # every failure becomes a dialog, never a crash
+                message = str(exc) if isinstance(exc, (ValueError, FileNotFoundError)) else \
+                    f"{type(exc).__name__}: {exc}\n\n{traceback.format_exc(limit=3)}"
+                self.load_failed.emit(path, message)
+            else:
+                self.loaded.emit(path, renderer)
+            finally:
+                if collecting:
+                    gc.enable()
+
+        gc.collect()  # here, on the GUI thread, what earlier scenes and windows left behind
+        threading.Thread(target=load, name="avgs-load", daemon=True).start()
