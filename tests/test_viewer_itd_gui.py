@@ -1,0 +1,95 @@
+"""Real events on the real window: dragging the listener past the source flips the interaural time
+difference of what plays (the engine's filter, and the full render the engine loops once the pose
+settles), as the source crosses the listener's median plane. A one-source checkpoint trained on
+recordings that carry an ITD (tests/rwavs_writer.py), its head fitted to them."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("pytestqt")
+
+from avgs.acoustics.impulse_response import convolve  # noqa: E402
+from avgs.evaluation import spatial  # noqa: E402
+from avgs_viewer.window import MainWindow  # noqa: E402
+
+pytestmark = pytest.mark.gui
+
+
+@pytest.fixture(scope="module")
+def x():
+    from avgs_viewer.xinput import XInput
+
+    if not os.environ.get("DISPLAY"):
+        pytest.skip("needs an X display (pytest-xvfb or xvfb-run)")
+    with XInput() as conn:
+        yield conn
+
+
+@pytest.fixture
+def window(qtbot, x, one_source_ckpt):
+    w = MainWindow()
+    qtbot.addWidget(w)
+    w.move(0, 0)
+    w.show()
+    w.activateWindow()
+    qtbot.waitActive(w)
+    with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
+        w.open_scene(one_source_ckpt)
+    yield w
+    w.close()
+
+
+def settled(qtbot, w: MainWindow) -> None:
+    """Until the newest pose's filter is the engine's and its full render is looping."""
+    def done():
+        assert w.live.worker.wait_idle(0.01)
+        assert w.engine.live_tag == w.live.seq and w.engine.impulse is not None
+        assert w.engine._loop is not None and w.engine._loop[2] == w.live.seq
+    qtbot.waitUntil(done, timeout=60_000)
+
+
+def played_itd(w: MainWindow) -> tuple[float, float]:
+    """(ITD of white noise through the engine's filter, ITD of the loop it plays), seconds."""
+    noise = torch.from_numpy(np.random.default_rng(0).standard_normal(2 * w.engine.sample_rate).astype(np.float32))
+    through_filter = convolve(noise, torch.from_numpy(np.ascontiguousarray(w.engine.impulse))).numpy()
+    return spatial.itd(through_filter), spatial.itd(w.engine._loop[0])
+
+
+def screen_xy(w: MainWindow, world) -> tuple[float, float]:
+    from PySide6 import QtCore
+
+    p = w.view.projector().to_display(np.asarray(world, dtype=np.float64))
+    scale = w.plotter.devicePixelRatioF()
+    g = w.plotter.mapToGlobal(QtCore.QPointF(p[0] / scale, w.plotter.height() - 1 - p[1] / scale))
+    return g.x(), g.y()
+
+
+def test_dragging_the_listener_past_the_source_flips_the_itd_of_what_plays(qtbot, window, x):
+    w = window
+    w.live.set_clip(0.1 * np.random.default_rng(1).standard_normal(2 * w.engine.sample_rate).astype(np.float32))
+    source = w.state.source
+    z = w.state.listener[2]
+    w.state.set_yaw(90.0)  # facing +y: a source at larger x is on the listener's right
+    w.state.set_listener((source[0] - 1.0, source[1], z))
+    settled(qtbot, w)
+    before = played_itd(w)
+    assert all(t > 150e-6 for t in before), before  # the right ear leads: positive
+
+    target = np.array([source[0] + 1.0, source[1], z])
+    start, end = screen_xy(w, w.state.listener), screen_xy(w, target)
+    x.press(*start)
+    qtbot.waitUntil(lambda: w.drag.dragging == "listener", timeout=5000)
+    for t in np.linspace(0, 1, 12)[1:-1]:
+        x.move(start[0] + t * (end[0] - start[0]), start[1] + t * (end[1] - start[1]))
+        qtbot.wait(20)
+    x.release(*end)
+    qtbot.waitUntil(lambda: w.drag.dragging is None, timeout=5000)
+    assert w.state.listener[:2] == pytest.approx(target[:2], abs=0.15)
+    settled(qtbot, w)
+    after = played_itd(w)
+    assert all(t < -150e-6 for t in after), after  # the source is now on the left: the left ear leads
