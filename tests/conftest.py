@@ -107,3 +107,16 @@ def tail_renderer():
     from avgs.render.renderer import SceneRenderer
 
     return SceneRenderer(_tail_checkpoint())
+
+
+@pytest.fixture(scope="module")
+def x():
+    """A connection to the X server that sends real pointer and key events (tests of the window)."""
+    import os
+
+    from avgs_viewer.xinput import XInput
+
+    if not os.environ.get("DISPLAY"):
+        pytest.skip("needs an X display (pytest-xvfb or xvfb-run)")
+    with XInput() as conn:
+        yield conn

@@ -5,8 +5,6 @@ recordings that carry an ITD (tests/rwavs_writer.py), its head fitted to them.""
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 import torch
@@ -16,18 +14,9 @@ pytest.importorskip("pytestqt")
 from avgs.acoustics.impulse_response import convolve  # noqa: E402
 from avgs.evaluation import spatial  # noqa: E402
 from avgs_viewer.window import MainWindow  # noqa: E402
+from real_events import screen_xy  # noqa: E402
 
 pytestmark = pytest.mark.gui
-
-
-@pytest.fixture(scope="module")
-def x():
-    from avgs_viewer.xinput import XInput
-
-    if not os.environ.get("DISPLAY"):
-        pytest.skip("needs an X display (pytest-xvfb or xvfb-run)")
-    with XInput() as conn:
-        yield conn
 
 
 @pytest.fixture
@@ -58,15 +47,6 @@ def played_itd(w: MainWindow) -> tuple[float, float]:
     noise = torch.from_numpy(np.random.default_rng(0).standard_normal(2 * w.engine.sample_rate).astype(np.float32))
     through_filter = convolve(noise, torch.from_numpy(np.ascontiguousarray(w.engine.impulse))).numpy()
     return spatial.itd(through_filter), spatial.itd(w.engine._loop[0])
-
-
-def screen_xy(w: MainWindow, world) -> tuple[float, float]:
-    from PySide6 import QtCore
-
-    p = w.view.projector().to_display(np.asarray(world, dtype=np.float64))
-    scale = w.plotter.devicePixelRatioF()
-    g = w.plotter.mapToGlobal(QtCore.QPointF(p[0] / scale, w.plotter.height() - 1 - p[1] / scale))
-    return g.x(), g.y()
 
 
 def test_dragging_the_listener_past_the_source_flips_the_itd_of_what_plays(qtbot, window, x):

@@ -5,7 +5,6 @@ Timings live in the benchmark (``avgs-viewer --bench``), not here."""
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 
@@ -16,19 +15,10 @@ pytest.importorskip("pytestqt")
 from PySide6 import QtCore, QtWidgets  # noqa: E402
 
 from avgs_viewer.window import MainWindow  # noqa: E402
+from real_events import screen_xy  # noqa: E402
 
 pytestmark = pytest.mark.gui
 DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
-
-
-@pytest.fixture(scope="module")
-def x():
-    from avgs_viewer.xinput import XInput
-
-    if not os.environ.get("DISPLAY"):
-        pytest.skip("needs an X display (pytest-xvfb or xvfb-run)")
-    with XInput() as conn:
-        yield conn
 
 
 @pytest.fixture
@@ -57,13 +47,6 @@ def settle(qtbot, w: MainWindow) -> None:
         assert not w.audio_path._show_timer.isActive()
     qtbot.waitUntil(done, timeout=30_000)
     qtbot.wait(100)
-
-
-def screen_xy(w: MainWindow, world) -> tuple[float, float]:
-    p = w.view.projector().to_display(np.asarray(world, dtype=np.float64))
-    scale = w.plotter.devicePixelRatioF()
-    g = w.plotter.mapToGlobal(QtCore.QPointF(p[0] / scale, w.plotter.height() - 1 - p[1] / scale))
-    return g.x(), g.y()
 
 
 def heard_ild(qtbot, w: MainWindow, seconds: float = 1.0) -> float:

@@ -1,0 +1,15 @@
+"""Helpers of the tests that drive the real window with X events (XTEST, as ``xdotool`` sends them)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def screen_xy(w, world) -> tuple[float, float]:
+    """Where on the screen (global pixels) the window ``w``'s 3D view draws the world point ``world``."""
+    from PySide6 import QtCore
+
+    p = w.view.projector().to_display(np.asarray(world, dtype=np.float64))
+    scale = w.plotter.devicePixelRatioF()
+    g = w.plotter.mapToGlobal(QtCore.QPointF(p[0] / scale, w.plotter.height() - 1 - p[1] / scale))
+    return g.x(), g.y()
