@@ -214,9 +214,9 @@ def test_resume_refuses_a_checkpoint_without_the_tasks_training_state(one_source
 
     bare = tmp_path / "bare.ckpt"
     save_checkpoint(untrained_checkpoint(torch.rand(50, 3) * 2 - 1, torch.zeros(3), seed=0), bare)
-    with pytest.raises(ValueError, match="bare.ckpt: holds no training state to resume from"):
+    with pytest.raises(ValueError, match="bare.ckpt: holds no training state of the binaural task to resume from"):
         resume_from(bare, TrainConfig(), tmp_path / "log.jsonl")
-    with pytest.raises(ValueError, match="holds no RIR training state to resume from"):
+    with pytest.raises(ValueError, match="holds no training state of the rir task to resume from"):
         resume_from(one_source_ckpt, TrainConfig(), tmp_path / "log.jsonl", task=IMPULSE_RESPONSE)  # a binaural-task run
     resumed, cfg, log, points, _ = resume_from(one_source_ckpt, TrainConfig(), tmp_path / "log.jsonl")
     assert cfg.acoustic.iterations == TrainConfig().acoustic.iterations and points.num_points == len(resumed["audio_points"]["X"])

@@ -27,6 +27,7 @@ from avgs.acoustics.model import AVGSModel
 from avgs.acoustics.synthesis import (Masks, SourceParts, ear_gains, ear_spectrogram, mid_phase_waveform, source_parts,
                                       unit_phase, waveform)
 from avgs.config import STFTConfig, SynthesisConfig
+from avgs.data.frame import SceneFrame
 from avgs.render.cells import ear_power, listener_contexts
 from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames
 
@@ -43,7 +44,8 @@ class BinauralTaskModel:
 
     source_aware = False
 
-    def __init__(self, model: AVGSModel, cache, stft: STFTConfig, where: str, source_context):
+    def __init__(self, model: AVGSModel, cache, stft: STFTConfig, where: str, source_context,
+                 frame: SceneFrame | None = None, bounds: np.ndarray | None = None):
         self.model, self.cache, self.stft, self.where = model, cache, stft, where
         self.device = next(iter(model.points.parameters())).device
         self._source_context = source_context  # the renderer's cached C_S of a source [3]

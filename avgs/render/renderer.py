@@ -155,8 +155,8 @@ class SceneRenderer:
         self._outline = None if outline is None else _readonly(outline.detach().cpu().float().numpy().reshape(-1, 2, 3))
         self._gaussians = self._read_gaussians(ckpt.get("gaussians"))
         self.task_model: TaskModel = self.kind.part("renderer")(
-            self.model, self.cache, self.stft, str(self.path or "this checkpoint"), self.source_context,
-            **({"frame": self.frame, "bounds": self._bounds} if self.kind.source_aware else {}))
+            self.model, self.cache, self.stft, str(self.path or "this checkpoint"), self.source_context, self.frame,
+            self._bounds)
         "The task's side of rendering (:class:`~avgs.render.tasks.TaskModel`), chosen from the checkpoint's task."
 
     @classmethod

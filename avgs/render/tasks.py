@@ -80,8 +80,10 @@ class BlockStream(Protocol):
 
 
 class TaskModel(Protocol):
-    """What the renderer asks of a task's model. Calls come under the renderer's lock and
-    ``torch.inference_mode``; positions are normalised, already inside the scene."""
+    """What the renderer asks of a task's model. Made once per checkpoint from (the model, its
+    cache, the STFT, the checkpoint's name for errors, the renderer's cached C_S of a source, the
+    scene's frame and box). Calls come under the renderer's lock and ``torch.inference_mode``;
+    positions are normalised, already inside the scene."""
 
     model: torch.nn.Module
     "G_a + F + the task's B (read only)."

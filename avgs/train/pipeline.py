@@ -132,8 +132,7 @@ def resume_from(out: Path, cfg: TrainConfig, log_path: Path, task: Task = BINAUR
     its audio points, its G or None). ValueError when ``out`` holds no training state of ``task``."""
     resumed = load_checkpoint(out)
     if resumed.get("train_state") is None or task_of(resumed) is not task:
-        what = "training" if task is BINAURAL else f"{task.name.upper()} training"
-        raise ValueError(f"{out}: holds no {what} state to resume from")
+        raise ValueError(f"{out}: holds no training state of the {task.name} task to resume from")
     stored = config_of(resumed)
     stored.acoustic.iterations = cfg.acoustic.iterations
     stored.checkpoint_every, stored.eval_every, stored.log_every = cfg.checkpoint_every, cfg.eval_every, cfg.log_every
