@@ -215,6 +215,8 @@ class RIRConfig:
     "Weight of the loss on each ear's energy per frequency bin (the log of the power summed over the frames) and on the ears' difference in it: the direct sound's few frames carry the level and the interaural difference, which the per-frame loss, dominated by the diffuse tail, learns too weakly (two_rooms: ILD 0.29 dB predicted against 1.54 dB true without it, 1.34 dB with it). 0: off."
     decay_weight: float = 1.0
     "Weight of the loss on each ear's energy decay curve (Schroeder; whole band and octave bands; in nats re its start, down to 50 dB): what T60, EDT and C50 read. Without it the per-frame log-magnitude loss averages the decays in the log domain and the predicted T60 comes out short (two_rooms, held out: -17 % bias, T60 error 18.5 %; with it and the energy loss 13.0 %). 0: off."
+    direct_sound: bool = True
+    "Put the direct sound where geometry says: nothing before distance / c, both ears coherent over its first 5 ms with the lagging ear delayed by the spherical head's ITD (its scale fitted to the training responses), the early energy kept (avgs.acoustics.rir_model.place_direct_sound); off: the noise phase from t = 0, the ears independent."
     phase: Literal["noise", "griffin-lim"] = "noise"
     "Waveform from the predicted magnitudes: a fixed-seed noise phase, or that phase refined by fast Griffin-Lim (same T60 / C50 / EDT on rect_small, 2.4x the render time)."
     phase_iterations: int = 4
@@ -379,7 +381,7 @@ class SynthesisConfig:
 ADDED_LATER = {
     "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False, "interaural_delay": False},
     "gaussians": {"cpu_max_pixels": 0},
-    "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0},
+    "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0, "direct_sound": False},
 }
 "Fields absent from older stored configurations, with the value that the older code used."
 

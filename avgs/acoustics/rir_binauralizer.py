@@ -74,6 +74,7 @@ import torch
 from torch import nn
 
 from avgs.acoustics.encodings import encoded_dim, positional_encoding
+from avgs.acoustics.interaural import DEFAULT_SCALE
 from avgs.config import RIRConfig
 
 MLP_LAYERS = 4
@@ -128,6 +129,10 @@ class RIRBinauralizer(nn.Module):
             self.log_critical = None
         if cfg.distance_slope or cfg.distance_knee:
             self.register_buffer("log_distance_mean", torch.tensor(0.0))  # mean log distance of the training pairs
+        if cfg.direct_sound:  # a / c of Woodworth's head, seconds: fitted to the training responses (avgs.train)
+            self.register_buffer("itd_scale", torch.tensor(DEFAULT_SCALE))
+        else:
+            self.itd_scale = None
 
     def time_features(self) -> torch.Tensor:
         """``W_t PE(t) + b_t`` for every frame ``[N, W]``: cacheable."""

@@ -24,12 +24,14 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass
 
 import torch
 from torch import nn
 
 from avgs import dsp
 from avgs.acoustics.field import AcousticField
+from avgs.acoustics.interaural import ear_delays
 from avgs.acoustics.model import AVGSModel, ModelCache
 from avgs.acoustics.points import AudioPoints
 from avgs.acoustics.rir_binauralizer import RIRBinauralizer
@@ -139,6 +141,33 @@ class RIRModel(AVGSModel):
         """Training: log magnitudes [B, 2, F, N] and the vicinities (:meth:`log_magnitudes`)."""
         return self.log_magnitudes(listener, yaw, source)
 
+    def direct_sound(self, listener: torch.Tensor, yaw: torch.Tensor, source: torch.Tensor) -> "DirectSound | None":
+        """When the direct sound reaches each ear (``RIRConfig.direct_sound``), or None: listener, source
+        [B, 3] normalised (source may be [3]), yaw [B] radians."""
+        scale = self.binauralizer.itd_scale
+        if scale is None or self.rir.sound_speed <= 0:
+            return None
+        if source.dim() == 1:
+            source = source[None].expand(listener.shape[0], -1)
+        distance = torch.linalg.vector_norm((source - listener).double(), dim=-1)  # [B]
+        theta = signed_direction(listener.double(), yaw.double(), source.double())  # [B]
+        return DirectSound(distance / self.rir.sound_speed, ear_delays(theta, float(scale)))
+
+
+@dataclass(frozen=True)
+class DirectSound:
+    """When the direct sound reaches each ear of a batch of poses."""
+
+    arrival: torch.Tensor  # [B] seconds: distance / c
+    delays: torch.Tensor  # [B, 2] seconds each ear hears it after that (the ITD: avgs.acoustics.interaural.ear_delays)
+
+
+DIRECT_SECONDS = 0.005
+"The direct sound's stretch after its arrival that both ears share (coherent), as the early ITD and ILD are measured."
+
+FADE_SAMPLES = 16
+"The gate before the arrival opens over this many samples (0.7 ms): no click."
+
 
 def silenced_magnitudes(log_mag: torch.Tensor, log_floor) -> torch.Tensor:
     """``max(e^y - e^(floor + SILENCE_MARGIN), 0)`` of log magnitudes ``y`` [...] (:meth:`RIRModel.magnitudes`)."""
@@ -161,8 +190,44 @@ def _noise_phase(n_freq: int, n_frames: int) -> torch.Tensor:
     return torch.polar(torch.ones_like(angle), angle).to(torch.complex64)
 
 
+def _phases(n_freq: int, n_frames: int, stft: STFTConfig, direct: DirectSound | None) -> torch.Tensor:
+    """The noise phase ``[2, F, N]``, or with ``direct`` ``[B, 2, F, N]``: the right ear takes the left's
+    phase in the frames that overlap the direct sound's first :data:`DIRECT_SECONDS` (coherent ears)."""
+    base = _noise_phase(n_freq, n_frames)
+    if direct is None:
+        return base
+    hop = stft.hop_length / stft.sample_rate
+    shared = torch.ceil((direct.arrival + DIRECT_SECONDS + 0.5 * stft.n_fft / stft.sample_rate) / hop).long()  # [B]
+    coherent = torch.arange(n_frames)[None, :] < shared[:, None]  # [B, N]
+    right = torch.where(coherent[:, None, :], base[0], base[1])  # [B, F, N]
+    return torch.stack([base[0].expand_as(right), right], dim=1)
+
+
+def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = STFT) -> torch.Tensor:
+    """Responses ``[B, 2, L]`` with nothing before the direct sound: each ear delayed by its ITD share
+    (fractional, by FFT), gated before ``arrival + delay`` (a raised-cosine over :data:`FADE_SAMPLES`),
+    and the energy the gate took from the ear's first window given back to its next half window
+    (the STFT frames spread the direct sound's energy over a window on both sides of it)."""
+    fs, n_win = float(stft.sample_rate), stft.n_fft
+    B, _, L = h.shape
+    size = 1 << int(math.ceil(math.log2(L + 64)))
+    freqs = torch.fft.rfftfreq(size, 1.0 / fs, dtype=torch.float64)  # [size // 2 + 1]
+    delays = direct.delays.double().cpu()  # [B, 2]
+    spec = torch.fft.rfft(h.double(), size) * torch.polar(torch.ones_like(freqs), -2.0 * math.pi * freqs * delays[..., None])
+    y = torch.fft.irfft(spec, size)[..., :L]  # [B, 2, L]
+    t = torch.arange(L, dtype=torch.float64)
+    start = (direct.arrival.double().cpu()[:, None] + delays) * fs  # [B, 2] samples
+    opening = ((t - (start[..., None] - FADE_SAMPLES)) / FADE_SAMPLES).clamp(0.0, 1.0)
+    gated = y * (0.5 - 0.5 * torch.cos(math.pi * opening))
+    window = (t < (start + n_win)[..., None]).double()  # the first window after the arrival, and before it
+    before, after = (y.square() * window).sum(-1), (gated.square() * window).sum(-1)  # [B, 2]
+    gain = torch.where(after > 0, torch.sqrt(before / after.clamp_min(1e-300)), torch.ones_like(after))
+    back = 0.5 + 0.5 * torch.cos(math.pi * ((t - (start[..., None] + n_win / 2)) / (n_win / 2)).clamp(0.0, 1.0))
+    return (gated * (1.0 + (gain[..., None] - 1.0) * back)).to(h.dtype)
+
+
 def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, phase: str = "griffin-lim",
-                      iterations: int = 4, momentum: float = 0.99) -> torch.Tensor:
+                      iterations: int = 4, momentum: float = 0.99, direct: DirectSound | None = None) -> torch.Tensor:
     """Waveforms ``[..., 2, length]`` float32 of predicted STFT magnitudes ``[..., 2, F, N]`` (>= 0).
 
     ``phase="noise"``: the magnitudes with the fixed-seed noise phase, inverse STFT;
@@ -173,11 +238,15 @@ def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, p
     overlap at hop n_fft / 4); Griffin-Lim recovers part of it. Each ear's waveform is
     therefore scaled so that its STFT energy equals that of the magnitudes: the level is
     the model's, so that it falls with distance as predicted.
+
+    ``direct`` (``[B]`` poses, ``mag [B, 2, F, N]``): the direct sound placed by geometry
+    (:func:`place_direct_sound`): the ears share their phase over its first frames, then
+    nothing arrives before distance / c, and the lagging ear hears it the ITD later.
     """
     if phase not in ("noise", "griffin-lim"):
         raise ValueError(f"RIR phase must be 'noise' or 'griffin-lim', got {phase!r}")
     mag = mag.float()
-    spec = mag * _noise_phase(mag.shape[-2], mag.shape[-1]).to(mag.device)  # [..., 2, F, N]
+    spec = mag * _phases(mag.shape[-2], mag.shape[-1], stft, direct).to(mag.device)  # [..., 2, F, N]
     its = iterations if phase == "griffin-lim" else 0
     want = mag.square().sum((-2, -1))  # [..., 2]
     n = mag.shape[-1]
@@ -193,4 +262,5 @@ def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, p
         rebuilt = dsp.stft(y, stft)
     got = (rebuilt * rebuilt.conj()).real.sum((-2, -1))  # [..., 2] the waveform's STFT energy
     gain = torch.where(got > 0, torch.sqrt(want / got.clamp_min(1e-30)), torch.zeros_like(got))
-    return y * gain[..., None]
+    y = y * gain[..., None]
+    return y if direct is None else place_direct_sound(y, direct, stft)

@@ -6,6 +6,8 @@ Trained on many source positions (``avgs train --task rir``), so the source is a
 ``RIRConfig.phase``); a render convolves the input with it (FFT; the synthesis settings do not
 apply), a stream is a :class:`~avgs.acoustics.convolution.ConvolutionStream`, and a pose's
 ``gains`` are the response's long-term ear gains (:func:`~avgs.acoustics.rir_model.ear_transfer`).
+With ``RIRConfig.direct_sound`` the direct sound is placed by geometry: nothing before distance /
+c, the lagging ear the spherical head's ITD later (:func:`~avgs.acoustics.rir_model.place_direct_sound`).
 Continuous yaw: the network reads the facing through cos / sin of the yaw and of the direction
 to the source; the yaw is taken modulo 360 first, so yaw 360 and yaw 0 give the same response
 exactly, and between the four trained facings the network interpolates smoothly. A response
@@ -57,7 +59,8 @@ class ImpulseResponseTaskModel:
                                                               self._source_context(pose.source))
         mag = self.model.magnitudes(log_mag.float()).cpu()  # [1, 2, F, N]
         rc = self.rir
-        h = response_waveform(mag, rc.length, self.stft, rc.phase, rc.phase_iterations)[0]  # [2, L]
+        direct = self.model.direct_sound(pose.listener, yaw, pose.source)
+        h = response_waveform(mag, rc.length, self.stft, rc.phase, rc.phase_iterations, direct=direct)[0]  # [2, L]
         gains = ear_transfer(mag, self.stft).double()  # [1, 2, F]
         check_finite((h, gains), self.where, f"response at listener {tuple(pose.listener_world)}, yaw {pose.yaw!r}")
         peak_db = 10.0 * math.log10(max(float(gains.square().max()), 1e-300))
@@ -122,10 +125,10 @@ class ImpulseResponseTaskModel:
         like = self.model.points.X
         for i in range(0, len(source), RESPONSE_CHUNK):
             sl = slice(i, i + RESPONSE_CHUNK)
-            log_mag, _, _ = self.model.log_magnitudes(
-                torch.from_numpy(receiver[sl]).to(like), self._yaw(yaw[sl], like), torch.from_numpy(source[sl]).to(like),
-                self.cache)
+            rec, yaw_rad, src = (torch.from_numpy(receiver[sl]).to(like), self._yaw(yaw[sl], like),
+                                 torch.from_numpy(source[sl]).to(like))
+            log_mag, _, _ = self.model.log_magnitudes(rec, yaw_rad, src, self.cache)
             out[sl] = response_waveform(self.model.magnitudes(log_mag.float()).cpu(), rc.length, self.stft, rc.phase,
-                                        rc.phase_iterations).numpy()
+                                        rc.phase_iterations, direct=self.model.direct_sound(rec, yaw_rad, src)).numpy()
         check_finite((torch.from_numpy(out),), self.where, "responses")
         return out

@@ -30,10 +30,13 @@ import numpy as np
 import torch
 
 from avgs import dsp
+from avgs.acoustics.interaural import DEFAULT_SCALE, fit_scale
 from avgs.acoustics.rir_model import RIRModel, response_waveform
 from avgs.config import TrainConfig
+from avgs.data.frame import signed_direction
 from avgs.data.rir import RIRScene
 from avgs.data.rwavs import RWAVSScene
+from avgs.evaluation import spatial
 from avgs.train.logging import JsonLinesLog
 from avgs.train.losses import band_masks, decay_loss, energy_loss
 from avgs.train.stage2 import Stage2Trainer
@@ -153,6 +156,7 @@ class RIRTrainer(Stage2Trainer):
         pick = np.unique(np.linspace(0, len(data) - 1, min(limit, len(data))).round().astype(int))
         sub = RIRData(data.listener[pick], data.source[pick], data.yaw[pick], data.log_mag[pick], data.rir[pick])
         mags = self.model.magnitudes(self.predict(sub))  # [M, 2, F, N]
+        direct = self.model.direct_sound(sub.listener.to(self.device), sub.yaw.to(self.device), sub.source.to(self.device))
         fs, length = self.cfg.stft.sample_rate, sub.rir.shape[-1]
         out: dict = {}
         rc = self.cfg.rir
@@ -162,7 +166,7 @@ class RIRTrainer(Stage2Trainer):
             chosen = f"{rc.phase} {rc.phase_iterations}"
             todo[chosen] = (rc.phase, rc.phase_iterations)
         for label, (phase, its) in todo.items():
-            wave = response_waveform(mags, length, self.cfg.stft, phase, its).numpy()  # [M, 2, L]
+            wave = response_waveform(mags, length, self.cfg.stft, phase, its, direct=direct).numpy()  # [M, 2, L]
             errs = np.array([[t60_error(p, g, fs), c50_error(p, g, fs), edt_error(p, g, fs)] for p, g in zip(wave, sub.rir)])
             key = f"{prefix}_phase_{label.replace(' ', '_')}"
             out[key] = {"t60": float(errs[:, 0].mean()), "c50": float(errs[:, 1].mean()), "edt": float(errs[:, 2].mean())}
@@ -200,6 +204,7 @@ class ImpulseResponseTraining:
         if len(self.train_set) == 0:
             raise ValueError(f"{self.responses.scene_dir}: no training responses")
         self.evals: dict[str, RIRData] = {}
+        self.itd_scale: float | None = None  # fitted by configure() for a fresh run
 
     def configure(self, cfg: TrainConfig, log: JsonLinesLog) -> None:
         """A fresh run: the responses' length and frames, and the speed of sound, into ``cfg.rir``."""
@@ -207,6 +212,16 @@ class ImpulseResponseTraining:
         cfg.rir.frames = dsp.n_frames(cfg.rir.length, cfg.stft)
         cfg.rir.sound_speed = speed_of_sound(self.responses) * self.scene.frame.scale  # normalised units per second
         log.write({"stage": "rir", "event": "task", "task": "rir", "responses": len(self.train_set), "length": cfg.rir.length})
+        self.itd_scale = None
+        if cfg.rir.direct_sound:  # the head that the training responses' direct sounds carry
+            train = self.train_set
+            theta = signed_direction(torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
+                                     torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64))),
+                                     torch.as_tensor(np.asarray(train.source), dtype=torch.float64))
+            itds = [spatial.response_itd(h, cfg.stft.sample_rate) for h in np.asarray(train.rir)]
+            self.itd_scale = fit_scale(theta.numpy(), itds)
+            log.write({"stage": "itd", "event": "fit", "scale_us": self.itd_scale * 1e6, "default_us": DEFAULT_SCALE * 1e6,
+                       "responses": len(itds)})
 
     def trainer(self, model: RIRModel, cfg: TrainConfig, resumed: bool) -> RIRTrainer:
         """The trainer on the training responses; a fresh model's floor, mean response and mean
@@ -214,6 +229,9 @@ class ImpulseResponseTraining:
         if int(self.responses.length) != cfg.rir.length:
             raise ValueError(f"{self.responses.scene_dir}: responses of {self.responses.length} samples, "
                              f"the checkpoint's of {cfg.rir.length}")
+        if not resumed and self.itd_scale is not None:
+            with torch.no_grad():
+                model.binauralizer.itd_scale.fill_(self.itd_scale)
         if resumed:
             log_floor = float(model.binauralizer.log_floor)
         else:

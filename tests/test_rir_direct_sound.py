@@ -1,0 +1,81 @@
+"""The impulse-response task's direct sound placed by geometry (avgs.acoustics.rir_model.place_direct_sound):
+nothing before distance / c, the lagging ear the fitted head's ITD later, the early energy kept; measured
+with the metrics of avgs.evaluation.spatial."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from avgs.acoustics.interaural import interaural_delay
+from avgs.acoustics.rir_model import FADE_SAMPLES, DirectSound, place_direct_sound
+from avgs.config import STFT
+from avgs.evaluation import spatial
+from avgs.render.renderer import SceneRenderer
+
+
+def test_the_gate_delays_each_ear_and_keeps_the_early_energy():
+    rng = np.random.default_rng(0)
+    L = 8000
+    h = torch.from_numpy(rng.standard_normal((1, 2, L)) * np.exp(-np.arange(L) / 1500.0)).float()  # noise from t = 0
+    direct = DirectSound(torch.tensor([0.01]), torch.tensor([[0.0, 4.0e-4]]))  # 10 ms; the right ear 0.4 ms later
+    y = place_direct_sound(h, direct, STFT)[0].numpy()  # [2, L]
+    fs = STFT.sample_rate
+    start = np.array([0.01 * fs, (0.01 + 4e-4) * fs])
+    for ear in (0, 1):
+        assert np.all(y[ear, : int(start[ear]) - FADE_SAMPLES] == 0)  # nothing arrives before the direct sound
+    window = [int(s) + STFT.n_fft for s in start]
+    for ear in (0, 1):  # the first window's energy is kept (the gate's share given to the next half window)
+        assert np.sum(y[ear, : window[ear]] ** 2) == pytest.approx(float(np.sum(h[0, ear, : window[0]].numpy() ** 2)), rel=0.25)
+    assert spatial.onset(y) == pytest.approx(start[0], abs=0.5e-3 * fs)
+
+
+@pytest.fixture(scope="module")
+def renderer(quick_rir_scene, tmp_path_factory):
+    from avgs.train.impulse_responses import rir_quick_config
+    from avgs.train.pipeline import train_scene
+
+    cfg = rir_quick_config()
+    cfg.acoustic.iterations = 40
+    out = tmp_path_factory.mktemp("direct") / "scene.ckpt"
+    train_scene(quick_rir_scene, out, cfg, task="rir", progress=False)
+    return SceneRenderer.load(out)
+
+
+def test_a_response_starts_at_distance_over_c_with_the_itd_of_its_side(renderer):
+    r = renderer
+    scale = float(r.model.binauralizer.itd_scale)
+    assert 1.5e-4 < scale < 4.5e-4  # fitted to the simulated head's responses
+    fs, c = r.sample_rate, r.config.rir.sound_speed / r.frame.scale  # world units (m) per second
+    lo, hi = r.bounds
+    listener = (lo + hi) / 2
+    source = listener + np.array([0.0, 1.5, 0.0])  # 1.5 m to +y
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for yaw, side in ((0.0, 1), (180.0, -1), (90.0, 0)):  # facing +x: the source on the left; -x: right; +y: ahead
+            h = r.binaural_filter(listener, yaw, source).impulse  # [2, L]
+            tau = float(interaural_delay(torch.tensor(side * math.pi / 2), scale))
+            arrival = 1.5 / c  # the leading ear hears it first, undelayed
+            assert spatial.onset(h) / fs == pytest.approx(arrival, abs=0.5e-3)
+            assert spatial.response_itd(h, fs) == pytest.approx(-tau, abs=30e-6)  # negative: the left ear leads
+
+
+def test_a_checkpoint_without_it_is_unchanged(renderer, quick_rir_scene, tmp_path):
+    """Older checkpoints (direct_sound absent: off) render as before: the noise phase from t = 0."""
+    from avgs.io.checkpoint import load_checkpoint, save_checkpoint
+
+    ckpt = load_checkpoint(renderer.path)
+    ckpt["config"]["rir"]["direct_sound"] = False
+    del ckpt["binauralizer"]["itd_scale"]
+    save_checkpoint(ckpt, tmp_path / "old.ckpt")
+    old = SceneRenderer.load(tmp_path / "old.ckpt")
+    assert old.model.binauralizer.itd_scale is None
+    lo, hi = old.bounds
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        h = old.binaural_filter((lo + hi) / 2, 0.0, (lo + hi) / 2 + np.array([0.0, 1.5, 0.0])).impulse
+    assert np.any(h[:, :16] != 0)  # sound from the first samples on, as before
