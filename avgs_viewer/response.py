@@ -2,8 +2,9 @@
 
 A pose's filter is its binaural impulse response ``[2, L]`` (``RenderResult.impulse``,
 channel 0 = left ear). :class:`ResponseSummary` holds it with each ear's energy decay
-curve (Schroeder backward integration, :func:`avgs.evaluation.metrics.schroeder_db`) and reverberation
-time (:func:`avgs.evaluation.metrics.rt60`, the T60 that ``avgs eval`` scores); :meth:`ResponseSummary.trace`
+curve (Schroeder backward integration, :func:`avgs.evaluation.metrics.schroeder_db`), reverberation
+time (:func:`avgs.evaluation.metrics.rt60`, the T60 that ``avgs eval`` scores) and direct sound
+(each ear's arrival and the ITD, as ``avgs eval``'s spatial cues measure them); :meth:`ResponseSummary.trace`
 decimates both to a few hundred columns for drawing (each column the minimum and maximum of
 the samples it covers, so no peak is lost however long the response).
 """
@@ -13,6 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from avgs.evaluation import spatial
 
 DECAY_FLOOR_DB = -90.0
 "The energy decay curves are drawn down to this level (and held there past the response's end)."
@@ -39,6 +42,8 @@ class ResponseSummary:
     decay_db: np.ndarray  # [2, L] float64: Schroeder curve per ear, dB re its start, floored at DECAY_FLOOR_DB
     t60_s: tuple[float | None, float | None] | None  # (left, right) seconds, None where it cannot be measured;
     #                                                  None: not measured (``t60=False``)
+    direct_s: tuple[float | None, float | None] = (None, None)  # (left, right) seconds: each ear's direct sound
+    itd_s: float = 0.0  # the direct sound's ITD (s; negative: the left ear leads), avgs.evaluation.spatial
 
     @classmethod
     def of(cls, impulse: np.ndarray, sample_rate: int, t60: bool = True) -> "ResponseSummary":
@@ -58,7 +63,8 @@ class ResponseSummary:
             if curve is not None:
                 decay[ear, :len(curve)] = np.maximum(curve, DECAY_FLOOR_DB)
         times = tuple(rt60(h[ear], fs=sample_rate) for ear in range(2)) if t60 else None
-        return cls(impulse=h, sample_rate=int(sample_rate), decay_db=decay, t60_s=times)
+        return cls(impulse=h, sample_rate=int(sample_rate), decay_db=decay, t60_s=times,
+                   direct_s=direct_arrivals(h, sample_rate), itd_s=spatial.response_itd(h, sample_rate))
 
     @property
     def length(self) -> int:
@@ -83,6 +89,13 @@ class ResponseSummary:
             return "T60 when the move ends"
         return f"T60 L {one(self.t60_s[0])}, R {one(self.t60_s[1])}"
 
+    def direct_text(self) -> str:
+        """When each ear hears the direct sound, and the ITD, in words, e.g. ``direct L 4.9 ms, R 5.2 ms, ITD -301 us``."""
+        def one(v):
+            return "-" if v is None else f"{1000.0 * v:.1f} ms"
+
+        return f"direct L {one(self.direct_s[0])}, R {one(self.direct_s[1])}, ITD {1e6 * self.itd_s:+.0f} us"
+
     def trace(self, columns: int) -> Trace:
         """The response and its decay decimated to ``columns`` (at most L) columns."""
         edges = column_edges(self.length, columns)  # [C + 1]
@@ -90,6 +103,20 @@ class ResponseSummary:
         centres = 0.5 * (edges[:-1] + edges[1:])
         return Trace(times_ms=1000.0 * centres / self.sample_rate, low=low, high=high,
                      decay_db=self.decay_db[:, edges[:-1]])
+
+
+def direct_arrivals(h: np.ndarray, sample_rate: int) -> tuple[float | None, float | None]:
+    """Each ear's direct sound (s): its first sample reaching the onset level of
+    :func:`avgs.evaluation.spatial.onset` (0.1 of the response's peak, both ears); None for an ear
+    that never does."""
+    level = spatial.ONSET_FRACTION * float(np.max(np.abs(h)))
+    if level <= 0:
+        return None, None
+    out = []
+    for ear in range(2):
+        above = np.flatnonzero(np.abs(h[ear]) >= level)
+        out.append(float(above[0]) / sample_rate if above.size else None)
+    return out[0], out[1]
 
 
 def column_edges(length: int, columns: int) -> np.ndarray:

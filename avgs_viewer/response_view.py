@@ -24,6 +24,8 @@ from .response import DECAY_FLOOR_DB, T60_LINE_DB, ResponseSummary, Trace
 
 EAR_COLOURS = (QtGui.QColor(40, 110, 220), QtGui.QColor(215, 60, 40))  # left ear, right ear
 EAR_NAMES = ("left ear", "right ear")
+DIRECT_COLOUR = QtGui.QColor(20, 160, 60)
+"The direct sound's marks: a dashed line at each ear's arrival, and its times and ITD in words."
 MIN_PLOT_HEIGHT = 150
 FONT_PT = 8
 
@@ -164,6 +166,14 @@ class ResponsePlot(QtWidgets.QWidget):
             p.setPen(colour)
             name = ("Left", "Right")[ear]
             p.drawText(QtCore.QPointF(area.left() - fm.horizontalAdvance(name) - 6, mid + fm.ascent() / 2 - 1), name)
+            arrival = self.summary.direct_s[ear]
+            if arrival is not None:  # the direct sound: a dashed line across the ear's lane where it arrives
+                xd = area.left() + area.width() * arrival / (self.summary.duration_ms / 1000.0)
+                p.setPen(QtGui.QPen(DIRECT_COLOUR, 1, QtCore.Qt.PenStyle.DashLine))
+                p.drawLine(QtCore.QPointF(xd, lane.top() + 1), QtCore.QPointF(xd, lane.bottom() - 1))
+        direct = self.summary.direct_text()  # inside the top right corner, past the direct sound
+        p.setPen(DIRECT_COLOUR)
+        p.drawText(QtCore.QPointF(area.right() - fm.horizontalAdvance(direct) - 4, area.top() + fm.ascent() + 3), direct)
 
     def _paint_decay(self, p: QtGui.QPainter, area: QtCore.QRectF, trace: Trace, text: QtGui.QColor) -> None:
         fm = self.fontMetrics()

@@ -67,6 +67,19 @@ def test_trace_keeps_every_peak_and_covers_the_whole_response():
     assert list(lo) == [0.0, 3.0] and list(hi) == [2.0, 9.0]
 
 
+def test_the_summary_finds_each_ears_direct_sound_and_the_itd():
+    fs = 22050
+    h = np.zeros((2, 4000), np.float32)
+    h[0, 300], h[1, 309] = 1.0, 0.6  # the left ear first, the right 9 samples (408 us) later
+    h[:, 400:] = 0.01 * np.random.default_rng(0).standard_normal((2, 3600))  # a quiet tail
+    s = ResponseSummary.of(h, fs, t60=False)
+    assert s.direct_s == (pytest.approx(300 / fs), pytest.approx(309 / fs))
+    assert s.itd_s == pytest.approx(-9 / fs, abs=5e-6)  # negative: the left ear leads
+    assert s.direct_text() == "direct L 13.6 ms, R 14.0 ms, ITD -408 us"
+    silent = ResponseSummary.of(np.zeros((2, 100), np.float32), fs, t60=False)
+    assert silent.direct_s == (None, None) and silent.direct_text() == "direct L -, R -, ITD +0 us"
+
+
 def test_summary_rejects_bad_responses():
     with pytest.raises(ValueError, match=r"\[2, L\]"):
         ResponseSummary.of(np.zeros((3, 10)), SR)

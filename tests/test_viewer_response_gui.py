@@ -18,7 +18,7 @@ from PySide6 import QtCore, QtGui, QtWidgets  # noqa: E402
 from avgs.cli import main as cli_main  # noqa: E402
 from avgs_viewer import colors  # noqa: E402
 from avgs_viewer.response import column_edges  # noqa: E402
-from avgs_viewer.response_view import EAR_COLOURS  # noqa: E402
+from avgs_viewer.response_view import DIRECT_COLOUR, EAR_COLOURS  # noqa: E402
 from avgs_viewer.window import FIXED_SOURCE_REASON, MainWindow  # noqa: E402
 
 pytestmark = pytest.mark.gui
@@ -96,12 +96,17 @@ def mouse_drag(qtbot, w: MainWindow, start: QtCore.QPoint, end: QtCore.QPoint, s
     qtbot.mouseRelease(w.plotter, LEFT, pos=end)
 
 
-def ear_pixels(w: MainWindow) -> tuple[int, int]:
-    """Pixels of the left and the right ear's colour in the drawn plot."""
+def colour_pixels(w: MainWindow, colour: QtGui.QColor) -> int:
+    """Pixels of ``colour`` (within 30 per channel) in the drawn plot."""
     img = w.response.plot.grab().toImage().convertToFormat(QtGui.QImage.Format.Format_RGB888)
     arr = np.frombuffer(img.constBits(), np.uint8, img.bytesPerLine() * img.height())
     arr = arr.reshape(img.height(), img.bytesPerLine())[:, :3 * img.width()].reshape(img.height(), img.width(), 3)
-    return tuple(int((np.abs(arr.astype(int) - np.array(c.getRgb()[:3])).max(-1) < 30).sum()) for c in EAR_COLOURS)
+    return int((np.abs(arr.astype(int) - np.array(colour.getRgb()[:3])).max(-1) < 30).sum())
+
+
+def ear_pixels(w: MainWindow) -> tuple[int, int]:
+    """Pixels of the left and the right ear's colour in the drawn plot."""
+    return colour_pixels(w, EAR_COLOURS[0]), colour_pixels(w, EAR_COLOURS[1])
 
 
 def camera(w: MainWindow):
@@ -125,6 +130,8 @@ def test_the_panel_shows_the_current_pose_response_and_follows_a_drag(qtbot, win
         np.testing.assert_array_equal(tr.low[:, c], first[:, edges[c]:edges[c + 1]].min(axis=1))
     left_px, right_px = ear_pixels(w)
     assert left_px > 200 and right_px > 200  # both ears' responses and decays are on screen
+    assert colour_pixels(w, DIRECT_COLOUR) > 20  # the direct sound marked (dashed lines, its times and ITD)
+    assert summary.direct_s[0] is not None and "ITD" in summary.direct_text()
     # Idle: nothing is redrawn (once the window has settled after loading), nor for the same response again.
     qtbot.wait(1500)
     paints = plot.paints
