@@ -26,8 +26,12 @@ mkdir -p "$WORK"
   OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --out "$WORK/scene.ckpt" --stage1-only --device "$DEVICE"
 
 # 3. Stage 2 of the impulse-response task: G_a (8000 of G's points), F and the RIR variant of B.
-#    The defaults: the ears' energy and energy-decay losses and the direct-plus-diffuse distance law
-#    (docs/results.md "Impulse responses").
+#    The defaults: the ears' energy and energy-decay losses, the direct-plus-diffuse distance law
+#    (docs/results.md "Impulse responses") and the direct sound placed by geometry with the head
+#    fitted to the training responses (RIRConfig.direct_sound). The committed demo got the last one
+#    without retraining (it is render-time; B's weights are the same): its config's direct_sound set
+#    and binauralizer.itd_scale fitted by avgs.train.impulse_responses.ImpulseResponseTraining.configure
+#    on this scene (273 us).
 OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --init gs --out "$WORK/scene.ckpt" --audio-points 8000 \
   --iterations 500 --batch-size 8 --lr 1e-3 --rir-width 256 --eval-every 250
 
