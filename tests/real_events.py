@@ -13,3 +13,18 @@ def screen_xy(w, world) -> tuple[float, float]:
     scale = w.plotter.devicePixelRatioF()
     g = w.plotter.mapToGlobal(QtCore.QPointF(p[0] / scale, w.plotter.height() - 1 - p[1] / scale))
     return g.x(), g.y()
+
+
+def open_window(qtbot, path):
+    """The real main window at the screen's top left, active (real key and pointer events reach it), ``path`` loaded."""
+    from avgs_viewer.window import MainWindow
+
+    w = MainWindow()
+    qtbot.addWidget(w)
+    w.move(0, 0)
+    w.show()
+    w.activateWindow()
+    qtbot.waitActive(w)
+    with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
+        w.open_scene(path)
+    return w

@@ -14,21 +14,14 @@ pytest.importorskip("pytestqt")
 from avgs.acoustics.impulse_response import convolve  # noqa: E402
 from avgs.evaluation import spatial  # noqa: E402
 from avgs_viewer.window import MainWindow  # noqa: E402
-from real_events import screen_xy  # noqa: E402
+from real_events import open_window, screen_xy  # noqa: E402
 
 pytestmark = pytest.mark.gui
 
 
 @pytest.fixture
 def window(qtbot, x, one_source_ckpt):
-    w = MainWindow()
-    qtbot.addWidget(w)
-    w.move(0, 0)
-    w.show()
-    w.activateWindow()
-    qtbot.waitActive(w)
-    with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
-        w.open_scene(one_source_ckpt)
+    w = open_window(qtbot, one_source_ckpt)
     yield w
     w.close()
 

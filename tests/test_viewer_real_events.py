@@ -15,7 +15,7 @@ pytest.importorskip("pytestqt")
 from PySide6 import QtCore, QtWidgets  # noqa: E402
 
 from avgs_viewer.window import MainWindow  # noqa: E402
-from real_events import screen_xy  # noqa: E402
+from real_events import open_window, screen_xy  # noqa: E402
 
 pytestmark = pytest.mark.gui
 DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
@@ -25,14 +25,7 @@ DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
 def window(qtbot, x):
     if not DEMO.is_file():
         pytest.skip("the bundled demo scene is missing (scripts/make_demo.sh)")
-    w = MainWindow()
-    qtbot.addWidget(w)
-    w.move(0, 0)
-    w.show()
-    w.activateWindow()
-    qtbot.waitActive(w)
-    with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
-        w.open_scene(DEMO)
+    w = open_window(qtbot, DEMO)
     settle(qtbot, w)
     yield w
     w.close()
