@@ -197,7 +197,8 @@ def _phases(n_freq: int, n_frames: int, stft: STFTConfig, direct: DirectSound | 
     if direct is None:
         return base
     hop = stft.hop_length / stft.sample_rate
-    shared = torch.ceil((direct.arrival + DIRECT_SECONDS + 0.5 * stft.n_fft / stft.sample_rate) / hop).long()  # [B]
+    arrival = direct.arrival.detach().double().cpu()  # [B]: the phases are made on the CPU
+    shared = torch.ceil((arrival + DIRECT_SECONDS + 0.5 * stft.n_fft / stft.sample_rate) / hop).long()  # [B]
     coherent = torch.arange(n_frames)[None, :] < shared[:, None]  # [B, N]
     right = torch.where(coherent[:, None, :], base[0], base[1])  # [B, F, N]
     return torch.stack([base[0].expand_as(right), right], dim=1)
@@ -212,18 +213,18 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
     B, _, L = h.shape
     size = 1 << int(math.ceil(math.log2(L + 64)))
     freqs = torch.fft.rfftfreq(size, 1.0 / fs, dtype=torch.float64)  # [size // 2 + 1]
-    delays = direct.delays.double().cpu()  # [B, 2]
-    spec = torch.fft.rfft(h.double(), size) * torch.polar(torch.ones_like(freqs), -2.0 * math.pi * freqs * delays[..., None])
+    delays = direct.delays.detach().double().cpu()  # [B, 2]
+    spec = torch.fft.rfft(h.detach().double().cpu(), size) * torch.polar(torch.ones_like(freqs), -2.0 * math.pi * freqs * delays[..., None])
     y = torch.fft.irfft(spec, size)[..., :L]  # [B, 2, L]
     t = torch.arange(L, dtype=torch.float64)
-    start = (direct.arrival.double().cpu()[:, None] + delays) * fs  # [B, 2] samples
+    start = (direct.arrival.detach().double().cpu()[:, None] + delays) * fs  # [B, 2] samples
     opening = ((t - (start[..., None] - FADE_SAMPLES)) / FADE_SAMPLES).clamp(0.0, 1.0)
     gated = y * (0.5 - 0.5 * torch.cos(math.pi * opening))
     window = (t < (start + n_win)[..., None]).double()  # the first window after the arrival, and before it
     before, after = (y.square() * window).sum(-1), (gated.square() * window).sum(-1)  # [B, 2]
     gain = torch.where(after > 0, torch.sqrt(before / after.clamp_min(1e-300)), torch.ones_like(after))
     back = 0.5 + 0.5 * torch.cos(math.pi * ((t - (start[..., None] + n_win / 2)) / (n_win / 2)).clamp(0.0, 1.0))
-    return (gated * (1.0 + (gain[..., None] - 1.0) * back)).to(h.dtype)
+    return (gated * (1.0 + (gain[..., None] - 1.0) * back)).to(device=h.device, dtype=h.dtype)
 
 
 def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, phase: str = "griffin-lim",
