@@ -66,3 +66,37 @@ def test_dragging_the_listener_past_the_source_flips_the_itd_of_what_plays(qtbot
     settled(qtbot, w)
     after = played_itd(w)
     assert all(t < -150e-6 for t in after), after  # the source is now on the left: the left ear leads
+
+
+DEMO = __import__("pathlib").Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
+
+
+def test_dragging_the_demos_source_around_the_head_flips_the_direct_sounds_itd(qtbot, x):
+    """The bundled demo (impulse responses, sources anywhere): the source dragged with real events from
+    the listener's left to its right, in the listener's room; the ITD of the filter that plays, its
+    direct sound's, changes sign as the source crosses the median plane."""
+    w = open_window(qtbot, DEMO)
+    try:
+        z = 1.5
+        w.state.set_yaw(90.0)  # facing +y: smaller x is the listener's left
+        w.state.set_listener((6.8, 1.6, z))
+        w.state.set_source((5.8, 2.9, z))
+
+        def heard_itd() -> float:
+            qtbot.waitUntil(lambda: w.live.worker.wait_idle(0.01) and w.engine.live_tag == w.live.seq, timeout=30_000)
+            return spatial.response_itd(w.engine.impulse, w.engine.sample_rate)
+
+        assert heard_itd() < -150e-6  # the source on the left: the left ear leads
+        target = np.array([7.8, 2.9, z])
+        start, end = screen_xy(w, w.state.source), screen_xy(w, target)
+        x.press(*start)
+        qtbot.waitUntil(lambda: w.drag.dragging == "source", timeout=5000)
+        for t in np.linspace(0, 1, 12)[1:-1]:
+            x.move(start[0] + t * (end[0] - start[0]), start[1] + t * (end[1] - start[1]))
+            qtbot.wait(20)
+        x.release(*end)
+        qtbot.waitUntil(lambda: w.drag.dragging is None, timeout=5000)
+        assert w.state.source[0] == pytest.approx(7.8, abs=0.2)
+        assert heard_itd() > 150e-6  # now on the right: the right ear leads
+    finally:
+        w.close()
