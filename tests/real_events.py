@@ -28,3 +28,16 @@ def open_window(qtbot, path):
     with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
         w.open_scene(path)
     return w
+
+
+def drag_handle(qtbot, w, x, handle: str, start, end, steps: int = 12) -> None:
+    """Press on ``handle``'s sphere at screen point ``start``, move to ``end`` in ``steps``, release (XTEST)."""
+    import numpy as np
+
+    x.press(*start)
+    qtbot.waitUntil(lambda: w.drag.dragging == handle, timeout=5000)
+    for t in np.linspace(0, 1, steps)[1:-1]:
+        x.move(start[0] + t * (end[0] - start[0]), start[1] + t * (end[1] - start[1]))
+        qtbot.wait(20)
+    x.release(*end)
+    qtbot.waitUntil(lambda: w.drag.dragging is None, timeout=5000)

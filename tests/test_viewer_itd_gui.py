@@ -14,7 +14,7 @@ pytest.importorskip("pytestqt")
 from avgs.acoustics.impulse_response import convolve  # noqa: E402
 from avgs.evaluation import spatial  # noqa: E402
 from avgs_viewer.window import MainWindow  # noqa: E402
-from real_events import open_window, screen_xy  # noqa: E402
+from real_events import drag_handle, open_window, screen_xy  # noqa: E402
 
 pytestmark = pytest.mark.gui
 
@@ -54,14 +54,7 @@ def test_dragging_the_listener_past_the_source_flips_the_itd_of_what_plays(qtbot
     assert all(t > 150e-6 for t in before), before  # the right ear leads: positive
 
     target = np.array([source[0] + 1.0, source[1], z])
-    start, end = screen_xy(w, w.state.listener), screen_xy(w, target)
-    x.press(*start)
-    qtbot.waitUntil(lambda: w.drag.dragging == "listener", timeout=5000)
-    for t in np.linspace(0, 1, 12)[1:-1]:
-        x.move(start[0] + t * (end[0] - start[0]), start[1] + t * (end[1] - start[1]))
-        qtbot.wait(20)
-    x.release(*end)
-    qtbot.waitUntil(lambda: w.drag.dragging is None, timeout=5000)
+    drag_handle(qtbot, w, x, "listener", screen_xy(w, w.state.listener), screen_xy(w, target))
     assert w.state.listener[:2] == pytest.approx(target[:2], abs=0.15)
     settled(qtbot, w)
     after = played_itd(w)
@@ -88,14 +81,7 @@ def test_dragging_the_demos_source_around_the_head_flips_the_direct_sounds_itd(q
 
         assert heard_itd() < -150e-6  # the source on the left: the left ear leads
         target = np.array([7.8, 2.9, z])
-        start, end = screen_xy(w, w.state.source), screen_xy(w, target)
-        x.press(*start)
-        qtbot.waitUntil(lambda: w.drag.dragging == "source", timeout=5000)
-        for t in np.linspace(0, 1, 12)[1:-1]:
-            x.move(start[0] + t * (end[0] - start[0]), start[1] + t * (end[1] - start[1]))
-            qtbot.wait(20)
-        x.release(*end)
-        qtbot.waitUntil(lambda: w.drag.dragging is None, timeout=5000)
+        drag_handle(qtbot, w, x, "source", screen_xy(w, w.state.source), screen_xy(w, target))
         assert w.state.source[0] == pytest.approx(7.8, abs=0.2)
         assert heard_itd() > 150e-6  # now on the right: the right ear leads
     finally:
