@@ -4,6 +4,7 @@ format version, sample rate, training configuration and final metrics)."""
 from __future__ import annotations
 
 import argparse
+import math
 import json
 
 from avgs.tasks import task_named, task_of
@@ -57,6 +58,8 @@ def summary(path) -> dict:
             "seed": cfg.seed,
         },
         "rt60_s": octave_rt60(ckpt["binauralizer"].get("reverb.log_rt60"), stft),
+        "itd_scale_us": (None if ckpt["binauralizer"].get("itd_scale") is None
+                         else 1e6 * float(ckpt["binauralizer"]["itd_scale"])),
         "metrics": {k: v for k, v in dict(ckpt.get("metrics") or {}).items()},
     }
 
@@ -90,13 +93,17 @@ def run(args: argparse.Namespace) -> int:
     src = ", ".join(f"{v:.3f}" for v in info["source_position"])
     lo, hi = (", ".join(f"{v:.2f}" for v in row) for row in info["bounds"])
     task = task_named(info["task"])
-    print(f"{info['path']}: AV-GS checkpoint, format {info['format_version']}, scene {info['scene']!r}, task {task.name} "
-          f"({task.summary}: {'the source can move' if task.source_aware else 'one source position'})")
+    print(f"{info['path']}: AV-GS checkpoint, format {info['format_version']}, scene {info['scene']!r}, task {task.name}: "
+          f"{task.summary}; {'the source can move' if task.source_aware else 'one source position'}")
     print(f"  audio points {info['audio_points']} (alpha {info['alpha_dim']} dims), gaussians {info['gaussians']}, outline segments {info['outline_segments']}")
     print(f"  source ({src}) world; bounds ({lo}) .. ({hi})")
     print(f"  {info['sample_rate']} Hz, n_fft {info['stft']['n_fft']}, hop {info['stft']['hop_length']}")
     t = info["training"]
     print("  trained " + ", ".join(f"{k} {v}" for k, v in t.items()) + f"; at iteration {info['iteration']}")
+    if info["itd_scale_us"] is not None:
+        scale = info["itd_scale_us"]
+        print(f"  ears: a spherical head's ITD, a / c = {scale:.0f} us (a = {scale * 0.0343:.1f} cm at 343 m/s; "
+              f"{scale * (math.pi / 2 + 1):.0f} us at 90 degrees)")
     if info["rt60_s"]:
         print("  learned RT60 " + ", ".join(f"{fc} Hz {v:.2f} s" for fc, v in info["rt60_s"].items()))
     if info["metrics"]:
