@@ -48,13 +48,14 @@ class ImpulseResponseTaskModel:
         self._source_context = source_context
         self._fast_frames: dict = {}  # FastMap -> (frames [n_t], interpolation [n_t, N])
 
-    def _yaw(self, yaw_degrees, like: torch.Tensor) -> torch.Tensor:
+    @staticmethod
+    def _yaw(yaw_degrees, like: torch.Tensor) -> torch.Tensor:
+        """Yaws (degrees, any shape) as the network reads them: radians of the yaw modulo 360, ``like``'s dtype and device."""
         return torch.as_tensor(np.radians(np.asarray(yaw_degrees, dtype=np.float64) % 360.0)).to(like.device, like.dtype)
 
     def response(self, pose: Pose, impulse: bool = True) -> Response:
         """The predicted response (always: it is what the gains are read from) and its ear gains."""
-        yaw = torch.tensor([math.radians(float(pose.yaw) % 360.0)], dtype=torch.float64).to(pose.listener.device,
-                                                                                           pose.listener.dtype)  # [1]
+        yaw = self._yaw([pose.yaw], pose.listener)  # [1]
         log_mag, lis_idx, src_idx = self.model.log_magnitudes(pose.listener, yaw, pose.source, self.cache,
                                                               self._source_context(pose.source))
         mag = self.model.magnitudes(log_mag.float()).cpu()  # [1, 2, F, N]
@@ -97,7 +98,7 @@ class ImpulseResponseTaskModel:
         """Each ear's power ``[n, 2, f]``: the response's gains squared, with ``fast`` from a subset of
         the bins and frames (:class:`~avgs.render.cells.FastMap`)."""
         model, n = self.model, len(listener)
-        yaw_rad = torch.full((n,), math.radians(yaw % 360.0), dtype=torch.float64).to(listener.device, listener.dtype)
+        yaw_rad = self._yaw(np.full(n, float(yaw)), listener)  # [n]
         if fast is None:
             log_mag = model.log_magnitudes(listener, yaw_rad, source, self.cache, cached_source)[0]  # [n, 2, F, N]
             return ear_transfer(model.magnitudes(log_mag.float()).cpu(), self.stft).double().numpy() ** 2
@@ -110,10 +111,9 @@ class ImpulseResponseTaskModel:
         if model.field is not None:
             c_s = cached_source[0][None].expand(n, -1)  # [n, c]
             context = torch.cat([c_s, listener_contexts(model, self.cache, listener)], dim=-1)  # [n, 2c] = C_S (+) C_L
-        yaw = torch.full((n,), math.radians(yaw % 360.0), device=listener.device, dtype=listener.dtype)
         src = source[None].expand(n, -1)  # [n, 3]
-        theta_r = signed_direction(listener, yaw, src)  # [n], as RIRModel.log_magnitudes
-        log_mag = b(listener, src, theta_r, yaw, context, self.cache.frequency, frames, bins)  # [n, 2, f, n_t]
+        theta_r = signed_direction(listener, yaw_rad, src)  # [n], as RIRModel.log_magnitudes
+        log_mag = b(listener, src, theta_r, yaw_rad, context, self.cache.frequency, frames, bins)  # [n, 2, f, n_t]
         gains = ear_transfer(model.magnitudes(log_mag @ interpolate.to(log_mag)).float().cpu(), self.stft)  # [n, 2, f]
         return gains.double().numpy() ** 2
 
