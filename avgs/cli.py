@@ -28,6 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="avgs", description="AV-GS: novel-view acoustic synthesis with audio-visual Gaussian splatting."
     )
+    parser.add_argument("--version", action="version", version=f"avgs {package_version()}")
     parser.add_argument("--threads", type=int, metavar="N",
                         help="Torch CPU threads (default: OMP_NUM_THREADS if set, else the cores the machine's load "
                              "leaves free, so that concurrent runs do not oversubscribe them).")
@@ -37,6 +38,16 @@ def build_parser() -> argparse.ArgumentParser:
         p.set_defaults(_module=f"avgs.commands.{name}")
         # Arguments are added lazily in main() for the chosen command only.
     return parser
+
+
+def package_version() -> str:
+    """The installed package's version (pyproject.toml), or "unknown" when it is not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("avgs")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def main(argv: list[str] | None = None) -> int:

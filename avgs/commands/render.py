@@ -9,9 +9,13 @@ command says so."""
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from avgs.commands.flags import field_help
 from avgs.config import MID_PHASE_ITERATIONS, SynthesisConfig
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Move the source (world; default: the trained one). A checkpoint of --task rir renders the "
                              "source there; a one-source checkpoint changes only the direction it is heard from.")
     parser.add_argument("--input", required=True, metavar="mono.wav", help="Input audio, any length; stereo is down-mixed.")
-    parser.add_argument("--output", required=True, metavar="out.wav", help="Binaural output (2 channels, float WAV).")
+    parser.add_argument("--output", required=True, metavar="out.wav", help="Binaural output, 2 channels: .wav (32-bit float), .flac, .ogg or .mp3 by its "
+                             "extension (a clip beyond full scale is scaled down to fit all but .wav, with a warning).")
     parser.add_argument("--device", default="cpu", help="Torch device (cpu or cuda).")
     add_synthesis_flags(parser)
 
@@ -47,16 +52,33 @@ def synthesis_of(args: argparse.Namespace) -> SynthesisConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from avgs.io.atomic import check_output, write_wav
+    from avgs.io.atomic import audio_format, check_output, write_audio
     from avgs.io.audio_input import read_mono
     from avgs.render.renderer import SceneRenderer
 
     check_output(args.output, inputs=[args.checkpoint, args.input], what="--output")
+    fmt, subtype = audio_format(args.output, "--output")
     renderer = SceneRenderer.load(args.checkpoint, device=args.device, synthesis=synthesis_of(args))
     mono = read_mono(args.input, renderer.sample_rate)
     out = renderer.render(args.listener, args.yaw, mono, source=args.source)
-    write_wav(args.output, out.binaural, renderer.sample_rate)
+    write_audio(args.output, fit_format(out.binaural, subtype, args.output), renderer.sample_rate, fmt, subtype)
     side = "left" if out.theta > 0 else "right" if out.theta < 0 else "ahead"
     how = "; the predicted response of this source position" if renderer.source_aware else ""
     print(f"wrote {args.output} ({out.binaural.shape[1]} samples, source {abs(out.theta):.0f} deg to the {side}{how})")
     return 0
+
+
+def fit_format(audio, subtype: str, path) -> "np.ndarray":
+    """``audio [2, T]`` as it goes into a file of ``subtype``: unchanged for float samples, else scaled
+    down to full scale when it peaks beyond it (a warning says by how much), so that nothing clips."""
+    import warnings
+
+    import numpy as np
+
+    audio = np.asarray(audio, dtype=np.float32)
+    peak = float(np.max(np.abs(audio))) if audio.size else 0.0
+    if subtype in ("FLOAT", "DOUBLE") or peak <= 1.0:
+        return audio
+    warnings.warn(f"{path}: the render peaks at {20 * np.log10(peak):+.1f} dBFS; scaled down by that much to fit "
+                  f"{subtype} (write a .wav to keep the level)", stacklevel=2)
+    return audio / np.float32(peak)

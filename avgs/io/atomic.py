@@ -14,6 +14,11 @@ an output may not be one of the command's inputs (the same file after resolving 
 an existing folder, a name ending in a separator, anything that is not a regular file
 (a device, FIFO or socket), or sit in a folder that does not exist. :func:`atomic_path`
 refuses to replace anything but a regular file.
+
+A write that fails (a full disk, a file size limit, an I/O error) is an ``OSError`` naming
+the destination, whichever writer failed: libsndfile and torch's zip writer, which hide the
+operating system's error behind their own, write through :class:`_GuardedFile`, which keeps
+it. The temporary file is removed, and the destination is left as it was.
 """
 
 from __future__ import annotations
@@ -164,26 +169,95 @@ def write_json(path: str | Path, data, indent: int = 2) -> Path:
     return write_text(path, json.dumps(data, indent=indent) + "\n")
 
 
-def write_wav(path: str | Path, audio, sample_rate: int, make_parents: bool = True) -> Path:
-    """``audio [C, T]`` as a C-channel 32-bit float WAV (channel 0 first)."""
+class _GuardedFile:
+    """A binary file handed to a writer that does its own I/O (libsndfile, torch's zip writer):
+    the first ``OSError`` of a write is kept and the writer is told nothing was written, so the
+    real reason (ENOSPC, EFBIG, EIO) survives writers that report failures their own way
+    (``LibsndfileError: System error``, ``RuntimeError: ... unexpected pos``). After the first
+    failure nothing more is written. :meth:`check` raises the kept error."""
+
+    def __init__(self, f):
+        self._f = f
+        self.error: OSError | None = None
+
+    def write(self, data) -> int:
+        if self.error is not None:
+            return 0
+        try:
+            return self._f.write(data)
+        except OSError as exc:
+            self.error = exc
+            return 0
+
+    def check(self) -> None:
+        if self.error is not None:
+            raise self.error
+
+    def __getattr__(self, name):  # seek, tell, read, flush, fileno: the file's own
+        return getattr(self._f, name)
+
+
+@contextmanager
+def _guarded_open(tmp: Path) -> Iterator[_GuardedFile]:
+    """``tmp`` opened for binary writing as a :class:`_GuardedFile`; a failed write (kept by the
+    guard) raises its ``OSError`` whatever exception the writer made of it, and so do flushing,
+    syncing and closing; the data reach the disk (``fsync``) before the block ends."""
+    with open(tmp, "wb") as f:
+        guard = _GuardedFile(f)
+        try:
+            yield guard
+        except Exception:
+            guard.check()  # the writer's own exception hides an OS error: report that instead
+            raise
+        guard.check()
+        f.flush()
+        os.fsync(f.fileno())
+
+
+AUDIO_FORMATS = {".wav": ("WAV", "FLOAT"), ".flac": ("FLAC", "PCM_24"), ".ogg": ("OGG", "VORBIS"),
+                 ".mp3": ("MP3", "MPEG_LAYER_III")}
+"Audio outputs by file name extension: (soundfile format, subtype). Only WAV holds samples beyond +-1."
+
+
+def audio_format(path: str | Path, what: str = "output") -> tuple[str, str]:
+    """``(format, subtype)`` that :func:`write_audio` writes ``path`` in, chosen by its extension;
+    OutputError for an extension it cannot write as that format (before any work)."""
+    suffix = Path(path).suffix.lower()
+    known = AUDIO_FORMATS.get(suffix)
+    if known is None:
+        kind = f"{suffix!r} files" if suffix else "a name without an extension"
+        raise OutputError(f"{what} {path}: audio is written as {', '.join(AUDIO_FORMATS)} (by the extension), not {kind}")
+    import soundfile as sf
+
+    if known[0] not in sf.available_formats():
+        raise OutputError(f"{what} {path}: this libsndfile cannot write {known[0]}; name it .wav")
+    return known
+
+
+def write_audio(path: str | Path, audio, sample_rate: int, format: str = "WAV", subtype: str = "FLOAT",
+                make_parents: bool = True) -> Path:
+    """``audio [C, T]`` as a C-channel file of soundfile's ``format`` and ``subtype`` (channel 0 first)."""
     import numpy as np
     import soundfile as sf
 
     audio = np.asarray(audio, dtype=np.float32)  # [C, T]
-    with atomic_path(path, make_parents=make_parents) as tmp:
-        with sf.SoundFile(str(tmp), "w", int(sample_rate), audio.shape[0], subtype="FLOAT", format="WAV") as f:
+    with atomic_path(path, make_parents=make_parents) as tmp, _guarded_open(tmp) as out:
+        with sf.SoundFile(out, "w", int(sample_rate), audio.shape[0], subtype=subtype, format=format) as f:
             for i in range(0, audio.shape[1], 1 << 18):  # in pieces: no interleaved copy of a long signal
                 f.write(np.ascontiguousarray(audio[:, i : i + (1 << 18)].T))
+                out.check()  # stop at the first failed write (a full disk), not at the end of a long clip
     return Path(path)
+
+
+def write_wav(path: str | Path, audio, sample_rate: int, make_parents: bool = True) -> Path:
+    """``audio [C, T]`` as a C-channel 32-bit float WAV (channel 0 first)."""
+    return write_audio(path, audio, sample_rate, "WAV", "FLOAT", make_parents=make_parents)
 
 
 def torch_save(obj, path: str | Path) -> Path:
     """``torch.save`` to ``path`` atomically (flushed to disk before the rename)."""
     import torch
 
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            torch.save(obj, f)
-            f.flush()
-            os.fsync(f.fileno())
+    with atomic_path(path) as tmp, _guarded_open(tmp) as out:
+        torch.save(obj, out)
     return Path(path)
