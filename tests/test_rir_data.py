@@ -112,7 +112,11 @@ def test_response_length_covers_the_decay_in_whole_hops():
     cfg = RIRConfig()
     n = response_length(0.5, 6.86, cfg, SR)  # 1.2 x 0.5 s + 20 ms
     assert n % 128 == 0 and 0.62 * SR <= n < 0.62 * SR + 128
-    assert response_length(5.0, 1.0, cfg, SR) == int(np.ceil(1.5 * SR / 128)) * 128  # capped
+    capped = response_length(5.0, 1.0, cfg, SR)
+    assert capped == 33024 and capped % 128 == 0 and capped <= 1.5 * SR < capped + 128  # capped: whole hops within 1.5 s
+    short = dataclasses.replace(cfg, max_seconds=0.25)
+    assert response_length(5.0, 1.0, short, SR) == 5504 <= 0.25 * SR  # the --quick cap, never one hop beyond
+    assert response_length(0.001, 0.0, cfg, SR) == 2304 >= 0.1 * SR  # the floor, rounded up
     assert response_length(None, 1.0, cfg, SR) == response_length(5.0, 1.0, cfg, SR)
 
 
@@ -296,7 +300,7 @@ def test_missing_or_damaged_wavs_are_refused_by_name(scene_copy):
     with pytest.raises(FileNotFoundError, match=re.escape(f"{victim}: missing")):
         RIRScene(scene_copy)
     wavfile.write(victim, SR, np.concatenate([data, np.zeros((128, 2), np.float32)]))
-    with pytest.raises(ValueError, match=re.escape(f"{victim}: {len(data) + 128} samples, but") + r".* same length"):
+    with pytest.raises(ValueError, match=re.escape(f"{victim}: {len(data) + 128} samples, expected {len(data)}") + r".* same length"):
         RIRScene(scene_copy)
     wavfile.write(victim, SR, np.ascontiguousarray(data[:, :1]))
     with pytest.raises(ValueError, match=re.escape(f"{victim}: 1 channel(s), expected 2")):
@@ -325,3 +329,76 @@ def test_cli_task_and_preset_must_agree(tmp_path, capsys):
     assert main(argv) == 0
     scene = RWAVSScene(tmp_path / "two_rooms_0")
     assert scene.metadata["environment"] == "multi-room" and not is_rir_scene(scene.root)
+
+
+def _edit_meta(scene_dir, edit):
+    path = scene_dir / "scene.json"
+    meta = json.loads(path.read_text())
+    edit(meta["rir"])
+    path.write_text(json.dumps(meta))
+    return path
+
+
+def test_source_0_is_never_held_out(scene_copy):
+    def hold_source_0(i):
+        s = i["splits"]
+        s["heldout"] += [p for k in ("train", "val") for p in s[k] if p[0] == 0]
+        for k in ("train", "val"):
+            s[k] = [p for p in s[k] if p[0] != 0]
+    path = _edit_index(scene_copy, hold_source_0)
+    with pytest.raises(ValueError, match=r"splits\.heldout holds source 0, the RWAVS part's source") as err:
+        RIRScene(scene_copy)
+    assert str(path) in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda r: r.update(length_samples=r["length_samples"] + 128), r"expected \d+ \(as scene\.json's rir\.length_samples\)"),
+        (lambda r: r.update(length_samples=r["length_samples"] + 1), r"rir\.length_samples is \d+; expected whole 128-sample hops"),
+        (lambda r: r.update(length_samples=33152), r"rir\.length_samples is 33152; .*at most 1\.5 s"),
+        (lambda r: r["counts"].update(val=r["counts"]["val"] + 1), r"rir\.counts\.val is \d+; index\.json lists \d+ val pairs"),
+        (lambda r: r.update(heldout_sources=[2 if r["heldout_sources"] == [1] else 1]), r"rir\.heldout_sources is \[\d\]; index\.json's held-out pairs have sources \[\d\]"),
+        (lambda r: r["receivers_world"][2].__setitem__(0, r["receivers_world"][2][0] + 0.5), r"rir\.receivers_world\[2\] is 0\.2\d+ normalised units from index\.json's"),
+        (lambda r: r["sources_world"].pop(), r"rir\.sources_world must list 3 \[x, y, z\]"),
+        (lambda r: r.update(counts="all"), r"rir\.counts\.train is null"),
+    ],
+)
+def test_scene_json_must_agree_with_the_index(scene_copy, edit, message):
+    path = _edit_meta(scene_copy, edit)
+    with pytest.raises(ValueError, match=message) as err:
+        RIRScene(scene_copy)
+    assert "\n" not in str(err.value) and (str(path) in str(err.value) or str(scene_copy / "rir") in str(err.value))
+
+
+def test_wavs_must_be_float32_whole_hops_within_the_cap(scene_copy):
+    index = _index(scene_copy)
+    s, r = index["splits"]["val"][0]
+    victim = scene_copy / "rir" / rir_file_name(s, r, 90)
+    data = sf.read(str(victim), dtype="float32")[0]  # [L, 2]
+    for subtype in ("PCM_16", "DOUBLE"):
+        sf.write(str(victim), data, SR, subtype=subtype)
+        with pytest.raises(ValueError, match=re.escape(f"{victim}: WAV of {subtype} samples, expected a WAV of 32-bit float")):
+            RIRScene(scene_copy)
+    sf.write(str(victim), data, SR, format="AIFF", subtype="FLOAT")
+    with pytest.raises(ValueError, match=re.escape(f"{victim}: AIFF of FLOAT samples")):
+        RIRScene(scene_copy)
+    wavfile.write(victim, SR, np.concatenate([data, np.zeros((64, 2), np.float32)]))
+    with pytest.raises(ValueError, match=re.escape(f"{victim}: {len(data) + 64} samples; expected whole 128-sample hops")):
+        RIRScene(scene_copy)
+    wavfile.write(victim, SR, np.zeros((33024 + 128, 2), np.float32))
+    with pytest.raises(ValueError, match=re.escape(f"{victim}: 33152 samples; expected whole 128-sample hops, 128 .. 33024 (at most 1.5 s)")):
+        RIRScene(scene_copy)
+    wavfile.write(victim, SR, data)
+    assert RIRScene(scene_copy).length == len(data)  # restored: loads again
+
+
+def test_rows_read_on_demand_equal_the_whole_split(quick_rir):
+    scene = RIRScene(quick_rir[0])
+    whole, rows = scene.responses("val"), scene.index("val")
+    assert len(rows) == len(whole) == 8
+    for k in ("source", "receiver", "yaw", "source_index", "receiver_index"):
+        np.testing.assert_array_equal(getattr(rows, k), getattr(whole, k))
+    pick = [5, 0, 5, 3]
+    np.testing.assert_array_equal(scene.read("val", pick), whole.rir[pick])
+    assert scene.read("val", []).shape == (0, 2, scene.length)

@@ -14,10 +14,18 @@ field: index.json is read strictly (:func:`avgs.data.files.read_json`); ``format
 :data:`FORMAT`; ``sample_rate`` the one the model expects; orientations distinct whole
 degrees in [0, 360); positions finite, within :data:`avgs.data.rwavs.MAX_COORDINATE`;
 every pair two integer indices in range, listed once over all splits; ``train`` not empty;
-no held-out pair's source in any train or val pair. When the scene is opened every listed
-file must be present with the sample rate, 2 channels and one common length (at most
-:data:`MAX_RESPONSE_SECONDS`); its samples are checked (finite, within
-:data:`avgs.data.rwavs.MAX_SAMPLE_MAGNITUDE`) when a split is first read.
+no held-out pair's source in any train or val pair, and source 0 (the RWAVS part's) never
+held out. scene.json's ``rir`` section, when there is one, must agree with the index: its
+``length_samples``, ``counts`` per split, ``heldout_sources`` and the world positions
+``sources_world`` / ``receivers_world`` (through the scene's frame). When the scene is opened
+every listed file must be present: a WAV of 32-bit float samples at the sample rate, 2
+channels, whole STFT hops (:data:`HOP`), at most :data:`MAX_RESPONSE_SECONDS`, and all of one
+length, scene.json's ``rir.length_samples`` when it gives one; its samples are checked
+(finite, within :data:`avgs.data.rwavs.MAX_SAMPLE_MAGNITUDE`) when they are read.
+
+:meth:`RIRScene.responses` reads a whole split (cached); :meth:`RIRScene.index` gives a
+split's positions without reading a file and :meth:`RIRScene.read` the responses of a few of
+its rows, so that training holds only a batch of responses at a time.
 
 The world <-> normalised frame is found as the binaural loader finds it: scene.json's
 ``to_normalised``, else a fit of ``transforms_{split}.json`` to ``transforms_scale_{split}.json``,
@@ -52,8 +60,17 @@ RIR_DIR = "rir"
 INDEX_FILE = "index.json"
 SPLITS = ("train", "val", "heldout")
 ENVIRONMENTS = ("rectangular", "non-rectangular", "multi-room")
-MAX_RESPONSE_SECONDS = 10.0
-"Longest response accepted (our generator writes at most 1.5 s)."
+MAX_RESPONSE_SECONDS = 1.5
+"Longest response accepted (docs/rir-layout.md; the generator caps its lengths there)."
+HOP = STFT.hop_length
+"Every response is a whole number of STFT hops (128 samples)."
+WAV_FORMATS = ("WAV", "WAVEX")
+"Containers a response may be in (libsndfile's names); the samples are 32-bit float (``FLOAT``)."
+
+
+def max_response_samples(sample_rate: int) -> int:
+    """The longest response of whole hops within :data:`MAX_RESPONSE_SECONDS` (33024 at 22050 Hz)."""
+    return int(MAX_RESPONSE_SECONDS * sample_rate) // HOP * HOP
 
 
 def rir_file_name(source: int, receiver: int, yaw_deg: int) -> str:
@@ -64,6 +81,20 @@ def rir_file_name(source: int, receiver: int, yaw_deg: int) -> str:
 def is_rir_scene(path) -> bool:
     """True for a folder holding ``rir/index.json``."""
     return is_regular_file(Path(path) / RIR_DIR / INDEX_FILE)
+
+
+@dataclass(frozen=True)
+class RIRIndex:
+    """The rows of one split without their responses: pair by pair (index.json's order), each pair's orientations in order."""
+
+    source: np.ndarray  # [N, 3] float64, normalised
+    receiver: np.ndarray  # [N, 3] float64, normalised
+    yaw: np.ndarray  # [N] float64, degrees counter-clockwise from +x
+    source_index: np.ndarray  # [N] int64
+    receiver_index: np.ndarray  # [N] int64
+
+    def __len__(self) -> int:
+        return int(self.source.shape[0])
 
 
 @dataclass(frozen=True)
@@ -126,7 +157,7 @@ class RIRScene:
         self.frame = self._read_frame()
         env = (self.metadata or {}).get("environment")
         self.environment = env if env in ENVIRONMENTS else "unknown"
-        self.length = self._check_files()
+        self.length = self._check_files(self._check_metadata())
         self._cache: dict[str, RIRSet] = {}
 
     def __repr__(self) -> str:
@@ -187,6 +218,8 @@ class RIRScene:
             out[split] = np.array(pairs, dtype=np.int64).reshape(-1, 2)
         if not len(out["train"]):
             raise ValueError(f"{where}.train is empty; expected at least one training pair")
+        if 0 in out["heldout"][:, 0]:
+            raise ValueError(f"{where}.heldout holds source 0, the RWAVS part's source; expected held-out sources other than 0")
         trained = set(out["train"][:, 0].tolist()) | set(out["val"][:, 0].tolist())
         leaked = sorted(set(out["heldout"][:, 0].tolist()) & trained)
         if leaked:
@@ -239,9 +272,55 @@ class RIRScene:
     def _path(self, s: int, r: int, y: int) -> Path:
         return self.scene_dir / RIR_DIR / rir_file_name(s, r, y)
 
-    def _check_files(self) -> int:
-        """Every listed file present with the sample rate, 2 channels and one common length; returns it."""
-        length, first = None, None
+    def _check_metadata(self) -> int | None:
+        """scene.json's ``rir`` section against the index (when there is one); its ``length_samples`` or None."""
+        meta = self.metadata
+        if meta is None or "rir" not in meta:
+            return None
+        where = f"{self.scene_dir / METADATA_FILE}: rir"
+        rir = meta["rir"]
+        if not isinstance(rir, dict):
+            raise ValueError(f"{where} must be an object, got {describe_json(rir)}")
+        length = None
+        if "length_samples" in rir:
+            length = _integer(rir["length_samples"], f"{where}.length_samples")
+            top = max_response_samples(self.sample_rate)
+            if not 0 < length <= top or length % HOP:
+                raise ValueError(f"{where}.length_samples is {length}; expected whole {HOP}-sample hops, {HOP} .. {top} "
+                                 f"(at most {MAX_RESPONSE_SECONDS} s)")
+        if "counts" in rir:
+            counts = rir["counts"]
+            for split in SPLITS:
+                n = counts.get(split) if isinstance(counts, dict) else None
+                if n is None or isinstance(n, bool) or n != len(self.pairs[split]):
+                    raise ValueError(f"{where}.counts.{split} is {describe_json(n)}; {INDEX_FILE} lists {len(self.pairs[split])} {split} pairs")
+        if "heldout_sources" in rir:
+            held = sorted(set(self.pairs["heldout"][:, 0].tolist()))
+            given = rir["heldout_sources"]
+            ok = isinstance(given, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in given)
+            if not ok or sorted(given) != held:
+                raise ValueError(f"{where}.heldout_sources is {describe_json(given) if not ok else given}; {INDEX_FILE}'s held-out pairs have sources {held}")
+        for key, points in (("sources_world", self.sources), ("receivers_world", self.receivers)):
+            if key not in rir:
+                continue
+            listed = rir[key]
+            if not isinstance(listed, list) or len(listed) != len(points):
+                raise ValueError(f"{where}.{key} must list {len(points)} [x, y, z] like {INDEX_FILE}, got {describe_json(listed)}")
+            world = np.stack([json_vector(p, 3, f"{where}.{key}[{i}]") for i, p in enumerate(listed)])  # [K, 3]
+            check_coordinates(world, f"{where}.{key}")
+            off = np.linalg.norm(self.frame.to_normalised(world) - points, axis=-1)  # [K]
+            tol = POSE_TOLERANCE * max(1.0, float(np.max(np.abs(points))))
+            if float(off.max()) > tol:
+                i = int(off.argmax())
+                raise ValueError(f"{where}.{key}[{i}] is {float(off[i]):.3g} normalised units from {INDEX_FILE}'s "
+                                 f"(tolerance {tol:.3g}); the two files must give the same positions")
+        return length
+
+    def _check_files(self, expected: int | None) -> int:
+        """Every listed file present: a 32-bit float WAV at the sample rate, 2 channels, whole hops,
+        within the cap, all of one length (``expected``: scene.json's, when it gives one); returns it."""
+        length, first = expected, None
+        top = max_response_samples(self.sample_rate)
         for split in SPLITS:
             for s, r, y in self._entries(split):
                 path = self._path(s, r, y)
@@ -250,38 +329,51 @@ class RIRScene:
                     info = sf.info(str(path))
                 except Exception as exc:  # libsndfile's errors, and whatever a malformed header provokes
                     raise ValueError(f"{path}: not a readable audio file ({type(exc).__name__}: {str(exc)[:200]})") from None
+                if info.format not in WAV_FORMATS or info.subtype != "FLOAT":
+                    raise ValueError(f"{path}: {info.format} of {info.subtype} samples, expected a WAV of 32-bit float samples (FLOAT)")
                 if info.samplerate != self.sample_rate:
                     raise ValueError(f"{path}: sample rate {info.samplerate} Hz, expected {self.sample_rate} Hz ({INDEX_FILE}'s sample_rate)")
                 if info.channels != 2:
                     raise ValueError(f"{path}: {info.channels} channel(s), expected 2 (left, right)")
-                if not 0 < info.frames <= MAX_RESPONSE_SECONDS * self.sample_rate:
-                    raise ValueError(f"{path}: {info.frames} samples; expected 1 .. {int(MAX_RESPONSE_SECONDS * self.sample_rate)}")
+                if not 0 < info.frames <= top or info.frames % HOP:
+                    raise ValueError(f"{path}: {info.frames} samples; expected whole {HOP}-sample hops, {HOP} .. {top} (at most {MAX_RESPONSE_SECONDS} s)")
                 if length is None:
-                    length, first = info.frames, path
+                    length, first = info.frames, path.name
                 elif info.frames != length:
-                    raise ValueError(f"{path}: {info.frames} samples, but {first.name} has {length}; every response of a scene has the same length")
+                    like = first if first is not None else f"{METADATA_FILE}'s rir.length_samples"
+                    raise ValueError(f"{path}: {info.frames} samples, expected {length} (as {like}); every response of a scene has the same length")
         return int(length)
+
+    def index(self, split: str) -> RIRIndex:
+        """The positions of ``split``'s rows, without reading a response."""
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        idx = np.array(self._entries(split), dtype=np.int64).reshape(-1, 3)  # [N, 3] source, receiver, yaw
+        return RIRIndex(source=self.sources[idx[:, 0]], receiver=self.receivers[idx[:, 1]], yaw=idx[:, 2].astype(np.float64),
+                        source_index=idx[:, 0].copy(), receiver_index=idx[:, 1].copy())
+
+    def read(self, split: str, rows) -> np.ndarray:
+        """The responses [len(rows), 2, L] float32 of ``split``'s ``rows`` (indices of :meth:`index`), read now."""
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        entries = self._entries(split)
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        out = np.empty((len(rows), 2, self.length), dtype=np.float32)  # [B, 2, L]
+        for i, row in enumerate(rows):
+            s, r, y = entries[int(row)]
+            path = self._path(s, r, y)
+            audio = read_wav(path, 2, self.sample_rate)  # [2, T], finite, within the magnitude limit
+            if audio.shape[-1] != self.length:
+                raise ValueError(f"{path}: {audio.shape[-1]} samples, expected {self.length} like every response of the scene")
+            out[i] = audio
+        return out
 
     def responses(self, split: str) -> RIRSet:
         """The responses of ``split`` ("train", "val" or "heldout"), read once and cached."""
         if split not in SPLITS:
             raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
         if split not in self._cache:
-            entries = self._entries(split)
-            rir = np.zeros((len(entries), 2, self.length), dtype=np.float32)  # [N, 2, L]
-            for i, (s, r, y) in enumerate(entries):
-                path = self._path(s, r, y)
-                audio = read_wav(path, 2, self.sample_rate)  # [2, T], finite, within the magnitude limit
-                if audio.shape[-1] != self.length:
-                    raise ValueError(f"{path}: {audio.shape[-1]} samples, expected {self.length} like every response of the scene")
-                rir[i] = audio
-            idx = np.array(entries, dtype=np.int64).reshape(-1, 3)  # [N, 3] source, receiver, yaw
-            self._cache[split] = RIRSet(
-                rir=rir,
-                source=self.sources[idx[:, 0]],
-                receiver=self.receivers[idx[:, 1]],
-                yaw=idx[:, 2].astype(np.float64),
-                source_index=idx[:, 0].copy(),
-                receiver_index=idx[:, 1].copy(),
-            )
+            rows = self.index(split)
+            self._cache[split] = RIRSet(rir=self.read(split, np.arange(len(rows))), source=rows.source, receiver=rows.receiver,
+                                        yaw=rows.yaw, source_index=rows.source_index, receiver_index=rows.receiver_index)
         return self._cache[split]

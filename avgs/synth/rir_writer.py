@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from avgs.config import STFT
-from avgs.data.rir import FORMAT, INDEX_FILE, RIR_DIR, rir_file_name
+from avgs.data.rir import FORMAT, INDEX_FILE, MAX_RESPONSE_SECONDS, RIR_DIR, rir_file_name
 from avgs.synth.grid import SPLITS, GridConfig, RIRGrid, make_grid
 from avgs.synth.presets import PRESETS, RIR_PRESETS, SceneSpec, make_spec
 from avgs.synth.simulate import SimSettings, ear_directivities, emission_delay, receiver_rirs, speed_of_sound
@@ -109,8 +109,9 @@ class RIRConfig:
         o = list(self.orientations_deg)
         if not o or any(isinstance(y, bool) or not isinstance(y, int) or not 0 <= y < 360 for y in o) or len(set(o)) != len(o):
             raise ValueError(f"orientations must be distinct whole degrees in [0, 360), got {o}")
-        if not (0 < self.min_seconds <= self.max_seconds <= 10):
-            raise ValueError(f"need 0 < min_seconds <= max_seconds <= 10, got {self.min_seconds} and {self.max_seconds}")
+        if not (0 < self.min_seconds <= self.max_seconds <= MAX_RESPONSE_SECONDS):
+            raise ValueError(f"need 0 < min_seconds <= max_seconds <= {MAX_RESPONSE_SECONDS} (the reader's cap), "
+                             f"got {self.min_seconds} and {self.max_seconds}")
         if not self.decay_factor > 0:
             raise ValueError(f"decay_factor must be > 0, got {self.decay_factor}")
         if self.workers < 1:
@@ -133,11 +134,13 @@ class RIRResult:
 
 def response_length(rt60_s: float | None, max_distance: float, cfg: RIRConfig, sample_rate: int) -> int:
     """Samples per response: ``decay_factor x rt60 + max_distance / c``, rounded up to whole
-    STFT hops, within ``min_seconds`` .. ``max_seconds`` (``max_seconds`` when the RT60 is unknown)."""
+    STFT hops, within ``min_seconds`` .. ``max_seconds`` (``max_seconds`` when the RT60 is unknown):
+    the cap is rounded down to whole hops, so a response never exceeds ``max_seconds``."""
     hop = STFT.hop_length
     seconds = cfg.max_seconds if rt60_s is None else cfg.decay_factor * float(rt60_s) + max_distance / speed_of_sound()
     seconds = min(max(seconds, cfg.min_seconds), cfg.max_seconds)
-    return int(math.ceil(seconds * sample_rate / hop)) * hop
+    top = max(1, int(cfg.max_seconds * sample_rate) // hop)  # whole hops within the cap
+    return min(int(math.ceil(seconds * sample_rate / hop)), top) * hop
 
 
 # -- per-receiver simulation (possibly in worker processes) -----------------------------
