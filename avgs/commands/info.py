@@ -26,7 +26,6 @@ def summary(path) -> dict:
     stft = stft_of(ckpt)
     g = ckpt.get("gaussians")
     scene = ckpt["scene"]
-    state = ckpt.get("train_state") or {}
     return {
         "path": str(path),
         "format_version": int(ckpt["format_version"]),
@@ -40,7 +39,7 @@ def summary(path) -> dict:
         "outline_segments": int(scene["outline"].shape[0]) if scene.get("outline") is not None else 0,
         "sample_rate": int(stft.sample_rate),
         "stft": {"n_fft": stft.n_fft, "hop_length": stft.hop_length, "win_length": stft.win_length},
-        "iteration": int(state.get("iteration", 0)),
+        "iteration": trained_iteration(ckpt),
         "task": task_of(ckpt).name,
         "training": {
             "stage1_iterations": cfg.gaussians.iterations,
@@ -62,6 +61,21 @@ def summary(path) -> dict:
                          else 1e6 * float(ckpt["binauralizer"]["itd_scale"])),
         "metrics": {k: v for k, v in dict(ckpt.get("metrics") or {}).items()},
     }
+
+
+def trained_iteration(ckpt: dict) -> int | None:
+    """The stage-2 iteration the checkpoint's weights are from: its training state's, else its final
+    metrics' (a finished run saved without its training state), else the last logged one; None
+    when nothing says (an untrained checkpoint)."""
+    state = ckpt.get("train_state")
+    if state is not None:
+        return int(state["iteration"])
+    final = (ckpt.get("metrics") or {}).get("iteration")
+    if isinstance(final, int) and not isinstance(final, bool):
+        return final
+    logged = [r["iteration"] for r in ckpt["history"] if r.get("stage") in ("stage2", "final")
+              and isinstance(r.get("iteration"), int) and not isinstance(r.get("iteration"), bool)]
+    return max(logged) if logged else None
 
 
 OCTAVE_BANDS_HZ = (125, 250, 500, 1000, 2000, 4000, 8000)
@@ -99,7 +113,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"  source ({src}) world; bounds ({lo}) .. ({hi})")
     print(f"  {info['sample_rate']} Hz, n_fft {info['stft']['n_fft']}, hop {info['stft']['hop_length']}")
     t = info["training"]
-    print("  trained " + ", ".join(f"{k} {v}" for k, v in t.items()) + f"; at iteration {info['iteration']}")
+    at = "" if info["iteration"] is None else f"; at iteration {info['iteration']}"
+    print("  trained " + ", ".join(f"{k} {v}" for k, v in t.items()) + at)
     if info["itd_scale_us"] is not None:
         scale = info["itd_scale_us"]
         print(f"  ears: a spherical head's ITD, a / c = {scale:.0f} us (a = {scale * 0.0343:.1f} cm at 343 m/s; "

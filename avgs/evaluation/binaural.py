@@ -40,6 +40,7 @@ from avgs import dsp
 from avgs.evaluation import metrics, spatial
 from avgs.evaluation.baselines import BASELINES
 from avgs.config import STFT, SynthesisConfig
+from avgs.data.identity import check_scene_identity
 from avgs.data.rwavs import AudioClip, RWAVSScene, is_scene_dir
 from avgs.evaluation.methods import Method, Prediction
 
@@ -55,16 +56,24 @@ class CheckpointMethod:
     """A trained checkpoint as a method, through :class:`avgs.render.renderer.SceneRenderer`.
 
     The clip's normalised listener goes to world coordinates with the scene's frame and
-    its yaw to degrees, the renderer's public convention (ARCHITECTURE.md).
+    its yaw to degrees, the renderer's public convention (ARCHITECTURE.md). It applies to the
+    scene of its name, and refuses (ValueError) one of that name with another identity
+    (:mod:`avgs.data.identity`: other poses, source or normalisation); a checkpoint without one
+    (older) is matched by name, with a warning.
     """
 
     def __init__(self, path: str | Path, device: str = "cpu", synthesis: SynthesisConfig | None = None):
         self.path = Path(path)
         if not self.path.is_file():
             raise FileNotFoundError(f"{self.path}: checkpoint missing")
+        from avgs.io.checkpoint import load_checkpoint
         from avgs.render.renderer import SceneRenderer  # heavy, and only needed here
 
-        self.renderer = SceneRenderer.load(self.path, device=device, synthesis=synthesis)
+        ckpt = load_checkpoint(self.path)
+        self.scene_identity: str | None = ckpt["scene"].get("identity")
+        "The training scene's :func:`~avgs.data.identity.scene_identity` (None in older checkpoints)."
+        self.renderer = SceneRenderer(ckpt, device=device, path=self.path, synthesis=synthesis)
+        self._checked: set[Path] = set()
 
     @property
     def scene_name(self) -> str | None:
@@ -76,7 +85,13 @@ class CheckpointMethod:
         return None
 
     def applies_to(self, scene: RWAVSScene) -> bool:
-        return self.scene_name is None or self.scene_name == scene.name
+        if self.scene_name is not None and self.scene_name != scene.name:
+            return False
+        folder = Path(getattr(scene, "root", None) or scene.scene_dir).resolve()  # RWAVSScene, RIRScene
+        if folder not in self._checked and (self.scene_identity is not None or not self._checked):
+            check_scene_identity(self.scene_identity, folder, self.path)  # a mismatch: ValueError; none: a warning, once
+        self._checked.add(folder)
+        return True
 
     def __call__(self, clip: AudioClip, scene: RWAVSScene) -> Prediction:
         listener = scene.frame.to_world(clip.listener)  # [3] world
@@ -107,7 +122,7 @@ class CheckpointSetMethod:
             self.by_scene[name] = method
 
     def applies_to(self, scene: RWAVSScene) -> bool:
-        return scene.name in self.by_scene
+        return scene.name in self.by_scene and self.by_scene[scene.name].applies_to(scene)
 
     def __call__(self, clip: AudioClip, scene: RWAVSScene) -> Prediction:
         return self.by_scene[scene.name](clip, scene)

@@ -19,7 +19,8 @@ A ``torch.save`` dict of tensors and plain values only, read back with
     rir             optional, task rir: {sources [S,3], receivers [R,3]} normalised, the training positions
     config          TrainConfig.to_dict()
     history         list of log records (dicts of plain values)
-    scene           {name, bounds [2,3] world, outline [K,2,3] world segments (optional)}
+    scene           {name, bounds [2,3] world, outline [K,2,3] world segments (optional),
+                    identity (optional): "sha256:<hex>" of the training scene (avgs.data.identity)}
     train_state     optional: the complete stage-2 training state (``Stage2Trainer.state_dict``)
     checksum        optional: ``"sha256:<hex>"`` of everything else (:func:`checkpoint_digest`),
                     written by :func:`save_checkpoint`; files without it (older ones) are read too
@@ -121,6 +122,7 @@ def build_checkpoint(
     history: list[dict] | None = None,
     gaussians: dict | None = None,
     name: str = "scene",
+    identity: str | None = None,
     bounds_world=None,
     outline_world=None,
     stft: STFTConfig = STFT,
@@ -129,6 +131,7 @@ def build_checkpoint(
     """The checkpoint dict of a trained (or untrained) :class:`~avgs.acoustics.model.AVGSModel`.
 
     ``gaussians``: G as a dict of tensors (``GaussianModel.to_dict()``), or None.
+    ``identity``: the training scene's :func:`avgs.data.identity.scene_identity` (``scene.identity``).
     ``bounds_world`` defaults to the box around the audio points and the source.
     ``extra``: further top-level plain values (e.g. the stage-2 resume state).
     """
@@ -139,6 +142,8 @@ def build_checkpoint(
         pts = frame.to_world(np.concatenate([X.numpy(), source.numpy()[None]]))
         bounds_world = np.stack([pts.min(0), pts.max(0)])
     scene = {"name": str(name), "bounds": torch.as_tensor(np.asarray(bounds_world, dtype=np.float32)).reshape(2, 3)}
+    if identity is not None:
+        scene["identity"] = str(identity)
     if outline_world is not None:
         scene["outline"] = torch.as_tensor(np.asarray(outline_world, dtype=np.float32)).reshape(-1, 2, 3)
     ckpt = {
@@ -229,17 +234,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise FileNotFoundError(f"{path}: checkpoint not found")
     if path.is_dir():
         raise ValueError(f"{path}: is a folder, not a checkpoint file")
-    with open(path, "rb") as f:  # the file system's errors (permission, I/O) come out as OSError naming the file
-        data = f.read()
-    try:
-        with warnings.catch_warnings():  # torch's warnings about odd pickles: the error says it
-            warnings.simplefilter("ignore")
-            ckpt = torch.load(io.BytesIO(data), map_location=map_location, weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - whatever torch.load makes of bytes that are not a checkpoint
-        raise ValueError(
-            f"{path}: not an AV-GS checkpoint (cannot be read as a torch.save file: {_load_error(exc)})"
-        ) from None
-    del data
+    ckpt = load_weights_only(path, "an AV-GS checkpoint", map_location)
     if isinstance(ckpt, dict) and CHECKSUM_KEY in ckpt:
         stored = ckpt.pop(CHECKSUM_KEY)
         if not isinstance(stored, str):
@@ -255,6 +250,21 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
             )
     validate_checkpoint(ckpt, path)
     return ckpt
+
+
+def load_weights_only(path: str | Path, what: str, map_location: str | torch.device = "cpu"):
+    """``torch.load(path, weights_only=True)``: tensors and plain values, never code. A file that
+    cannot be read so is one ``ValueError``: ``"{path}: not {what} (cannot be read as a torch.save
+    file: REASON)"``, without torch's advice to load it with ``weights_only=False`` (for a file
+    that carries code, the wrong advice). OS errors (permission, I/O) are ``OSError`` naming the file."""
+    with open(path, "rb") as f:
+        data = f.read()
+    try:
+        with warnings.catch_warnings():  # torch's warnings about odd pickles: the error says it
+            warnings.simplefilter("ignore")
+            return torch.load(io.BytesIO(data), map_location=map_location, weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - whatever torch.load makes of bytes that are not such a file
+        raise ValueError(f"{path}: not {what} (cannot be read as a torch.save file: {_load_error(exc)})") from None
 
 
 def _load_error(exc: BaseException) -> str:

@@ -1,5 +1,11 @@
 """The layout of ``scene.ckpt`` and its validation: every key checked before anything uses it.
 
+The shape contract: a position is a tensor of exactly ``[3]`` (``source``; ``frame.center``
+may also be a list of 3 numbers), a set of positions ``[N, 3]`` (``audio_points.X``,
+``gaussians.means``, ``rir.*``), ``scene.bounds`` ``[2, 3]``, ``scene.outline`` ``[K, 2, 3]``.
+Nothing is reshaped on reading: a ``[3, 1]`` or ``[1, 3]`` source is refused by name, shape
+and the expected one, so the loader, the renderer and every command agree on what they read.
+
 :func:`validate_checkpoint` refuses a malformed checkpoint dict with one ``ValueError`` that
 names the file and the first problem: a missing key, a wrong type, a tensor of the wrong shape
 for the stored configuration (the network weights are compared with the task's networks built
@@ -12,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import re
 import typing
 from pathlib import Path
 
@@ -25,6 +32,8 @@ FORMAT_VERSION = 1
 "Bumped whenever the layout of the checkpoint dict changes incompatibly."
 REQUIRED_KEYS = ("format_version", "frame", "source", "stft", "audio_points", "field", "binauralizer", "config", "history", "scene")
 "Top-level keys every checkpoint carries (``gaussians`` is optional)."
+IDENTITY_PATTERN = re.compile(r"sha256:[0-9a-f]{64}")
+"scene.identity (optional; absent in older files): the training scene's :func:`avgs.data.identity.scene_identity`."
 CHECKSUM_KEY = "checksum"
 "Top-level key of the integrity checksum that :func:`avgs.io.checkpoint.save_checkpoint` adds."
 
@@ -158,13 +167,16 @@ def _validate(ckpt: dict) -> None:
     frame = ckpt["frame"]
     if not isinstance(frame, dict):
         raise _Invalid(f"bad 'frame': expected a dict of 'center' and 'scale', got {kind_of(frame)}")
+    center = frame.get("center")
+    if isinstance(center, torch.Tensor):
+        _tensor(center, "bad 'frame': frame.center", (3,))
+    elif not (isinstance(center, (list, tuple)) and len(center) == 3 and all(_is_number(v) for v in center)):
+        raise _Invalid(f"bad 'frame': frame.center must be 3 numbers (a list or a tensor [3]), got {kind_of(center)}")
     try:
         SceneFrame.from_dict(frame)
     except (TypeError, ValueError, AttributeError, OverflowError, RuntimeError, IndexError) as exc:
         raise _Invalid(f"bad 'frame': {exc}") from None
-    source = _tensor(ckpt["source"], "source")
-    if source.numel() != 3:
-        raise _Invalid(f"'source' must be a tensor of 3 numbers, got shape {tuple(source.shape)}")
+    _tensor(ckpt["source"], "source", (3,))  # exactly [3]: what build_checkpoint writes and every reader indexes
     pts = _dict(ckpt["audio_points"], "audio_points")
     for key in ("X", "alpha"):
         if key not in pts:
@@ -348,6 +360,9 @@ def _validate_scene(scene) -> None:
         raise _Invalid("'scene' must hold 'bounds' [2,3]")
     if "name" in scene and not isinstance(scene["name"], str):
         raise _Invalid(f"scene.name must be a string, got {kind_of(scene['name'])}")
+    identity = scene.get("identity")
+    if identity is not None and not (isinstance(identity, str) and IDENTITY_PATTERN.fullmatch(identity)):
+        raise _Invalid(f"scene.identity must be 'sha256:' and 64 hex digits (avgs.data.identity), got {kind_of(identity)}")
     bounds = _tensor(scene["bounds"], "scene.bounds", (2, 3))
     if not bool((bounds[0] <= bounds[1]).all()):
         raise _Invalid(f"scene.bounds must be (min corner, max corner), got {bounds.tolist()}")

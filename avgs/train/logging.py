@@ -34,8 +34,11 @@ class JsonLinesLog:
     def write(self, record: dict) -> None:
         record = {k: _plain(v) for k, v in record.items()}
         self.records.append(record)
-        with open(self.path, "a", encoding="utf-8") as f:
-            f.write(json.dumps(record) + "\n")
+        try:
+            with open(self.path, "a", encoding="utf-8") as f:
+                f.write(json.dumps(record) + "\n")
+        except OSError as exc:  # a full disk: the file's name in the one line the CLI prints
+            raise OSError(exc.errno, f"cannot write {self.path}: {exc.strerror or exc}") from None
 
 
 def plot_curves(records: list[dict], path: str | Path) -> Path:

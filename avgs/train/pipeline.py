@@ -25,6 +25,7 @@ import torch
 
 from avgs.acoustics.points import AudioPoints
 from avgs.config import TrainConfig
+from avgs.data.identity import check_scene_identity, scene_identity
 from avgs.data.scene_geometry import outline_from_metadata
 from avgs.io.checkpoint import build_checkpoint, config_of, load_checkpoint, save_checkpoint
 from avgs.tasks import BINAURAL, DEFAULT, Task, task_named, task_of
@@ -44,10 +45,10 @@ from avgs.train.stage1 import (
 from avgs.train.tasks import TaskTraining, quick_config  # noqa: F401 (the --quick preset, imported from here too)
 
 
-def _stage1(scene, cfg: TrainConfig, log: JsonLinesLog, progress: bool, cache: Path, given: Path | None):
+def _stage1(scene, cfg: TrainConfig, log: JsonLinesLog, progress: bool, cache: Path, given: tuple[Path, dict] | None):
     """(AudioPoints, gaussians dict or None): stage 1 as ``cfg.init`` and ``cfg.store_gaussians`` ask.
 
-    G comes from ``given`` (a stage-1 file), else from ``cache`` when it was made for this
+    G comes from ``given`` (a stage-1 file and its contents, :func:`_given_stage1`), else from ``cache`` when it was made for this
     scene and these settings, else it is trained and written to ``cache``. The initial points
     (scene.json's surfaces or SfM points) are made once, when G_a or a new G needs them.
     """
@@ -63,22 +64,31 @@ def _stage1(scene, cfg: TrainConfig, log: JsonLinesLog, progress: bool, cache: P
 
     gaussians = None
     if needs_gaussians(cfg):
-        data = load_stage1(given) if given is not None else (load_stage1(cache) if cache.is_file() else None)
-        if given is not None and data.get("scene") != scene.name:
-            raise ValueError(f"{given}: stage 1 of scene {data.get('scene')!r}, not of {scene.name!r}")
+        data = given[1] if given is not None else (load_stage1(cache) if cache.is_file() else None)
         reuse = data is not None and (given is not None or reusable(data, scene.name, cfg, source))
         if not reuse and _apply_cpu_budget(scene.root, cfg, log.write, progress):
             reuse = data is not None and reusable(data, scene.name, cfg, source)
         if reuse:
             for record in data.get("history", []):
                 log.write(record)
-            log.write({"stage": "stage1", "event": "reused", "file": str(given or cache)})
+            log.write({"stage": "stage1", "event": "reused", "file": str(given[0] if given is not None else cache)})
             gaussians = data["gaussians"]
         else:
             gaussians, stats, history = _train_stage1_logged(scene.root, cfg, progress, log.write, init())
             save_stage1(cache, scene.name, cfg, gaussians, stats, history)
     points = audio_points_from(gaussians if cfg.init == "gs" else None, init() if cfg.init == "sfm" else None, cfg)
     return points, (gaussians if cfg.store_gaussians else None)
+
+
+def _given_stage1(path: str | Path | None, scene_name: str, cfg: TrainConfig) -> tuple[Path, dict] | None:
+    """``--stage1 FILE`` read and checked before any output is written (a foreign or malformed
+    file is refused without leaving a log behind); None when no file is given or G is not needed."""
+    if path is None or not needs_gaussians(cfg):
+        return None
+    data = load_stage1(path)
+    if data.get("scene") != scene_name:
+        raise ValueError(f"{path}: stage 1 of scene {data.get('scene')!r}, not of {scene_name!r}")
+    return Path(path), data
 
 
 def _apply_cpu_budget(scene_dir: Path, cfg: TrainConfig, sink, progress: bool) -> bool:
@@ -126,13 +136,16 @@ def _train_stage1_logged(scene_dir: Path, cfg: TrainConfig, progress: bool, sink
     return gaussians, stats, history
 
 
-def resume_from(out: Path, cfg: TrainConfig, log_path: Path, task: Task = BINAURAL):
+def resume_from(out: Path, cfg: TrainConfig, log_path: Path, task: Task = BINAURAL, scene_dir: Path | None = None):
     """What ``--resume`` continues from the checkpoint ``out`` of ``task``: (the checkpoint, its
     stored configuration with this run's iterations, intervals and device, its log continued,
-    its audio points, its G or None). ValueError when ``out`` holds no training state of ``task``."""
+    its audio points, its G or None). ValueError when ``out`` holds no training state of ``task``,
+    or was trained on another scene than ``scene_dir`` (:mod:`avgs.data.identity`)."""
     resumed = load_checkpoint(out)
     if resumed.get("train_state") is None or task_of(resumed) is not task:
         raise ValueError(f"{out}: holds no training state of the {task.name} task to resume from")
+    if scene_dir is not None:
+        check_scene_identity(resumed["scene"].get("identity"), scene_dir, out, "resume")
     stored = config_of(resumed)
     stored.acoustic.iterations = cfg.acoustic.iterations
     stored.checkpoint_every, stored.eval_every, stored.log_every = cfg.checkpoint_every, cfg.eval_every, cfg.log_every
@@ -165,30 +178,48 @@ def train_scene(
 
     With ``resume`` and an existing ``out``, the model, optimizer and random state come from
     it and training continues from its iteration up to ``cfg.acoustic.iterations``.
-    """
-    from tqdm.auto import tqdm
 
+    A run that fails before its first checkpoint is saved removes the log it started; the
+    stage-1 file it wrote (``<out>.stage1.pt``) stays, for the next run to reuse.
+    """
     kind = task_named(task, "task")
     cfg = copy.deepcopy(cfg or TrainConfig())
     out = Path(out)
-    log_path, png_path = log_paths(out)
+    log_path, _ = log_paths(out)
     hooks: TaskTraining = kind.part("training")(scene_dir, cfg)
     scene = hooks.scene
     torch.manual_seed(cfg.seed)
 
-    resumed = None
+    identity = scene_identity(scene.root)
     if resume and out.is_file():
-        resumed, cfg, log, points, gaussians = resume_from(out, cfg, log_path, kind)
-    else:
-        log = JsonLinesLog(log_path)
+        resumed, cfg, log, points, gaussians = resume_from(out, cfg, log_path, kind, scene.root)
+        return _train(kind, hooks, cfg, out, log, points, gaussians, resumed, identity, progress, [])
+    given = _given_stage1(stage1, scene.name, cfg)  # refused before the log is started
+    log = JsonLinesLog(log_path)
+    saved: list[int] = []
+    try:
         hooks.configure(cfg, log)
         t0 = time.perf_counter()
         if initial_points is not None:
             points, gaussians = initial_points, None
         else:
-            points, gaussians = _stage1(scene, cfg, log, progress, stage1_path(out), Path(stage1) if stage1 else None)
+            points, gaussians = _stage1(scene, cfg, log, progress, stage1_path(out), given)
         log.write({"stage": "stage1", "event": "done", "seconds": time.perf_counter() - t0, "points": points.num_points})
+        return _train(kind, hooks, cfg, out, log, points, gaussians, None, identity, progress, saved)
+    except BaseException:
+        if not saved:  # a run that failed (a full disk, an error, Ctrl-C) before its first checkpoint leaves no log
+            log.path.unlink(missing_ok=True)
+        raise
 
+
+def _train(kind: Task, hooks: TaskTraining, cfg: TrainConfig, out: Path, log: JsonLinesLog, points, gaussians,
+           resumed: dict | None, identity: str, progress: bool, saved: list[int]) -> dict:
+    """Stage 2: the one loop, from ``points`` (and ``resumed``'s state), saving ``out`` (each save's
+    iteration appended to ``saved``)."""
+    from tqdm.auto import tqdm
+
+    scene = hooks.scene
+    _, png_path = log_paths(out)
     torch.manual_seed(cfg.seed)
     model = kind.part("model").build(points, cfg, cfg.stft)
     if resumed is not None:
@@ -210,11 +241,12 @@ def train_scene(
     def save(metrics: dict | None = None) -> None:
         extra = hooks.checkpoint_extra(metrics)
         ckpt = build_checkpoint(
-            model, scene.frame, scene.source, cfg, history=log.records, gaussians=gaussians, name=scene.name,
+            model, scene.frame, scene.source, cfg, history=log.records, gaussians=gaussians, name=scene.name, identity=identity,
             bounds_world=hooks.bounds(model, gaussians), outline_world=outline, stft=cfg.stft,
             extra={"task": kind.name, **extra, "train_state": trainer.state_dict()},
         )
         save_checkpoint(ckpt, out)
+        saved.append(trainer.iteration)
 
     total = cfg.acoustic.iterations
     final: dict = {}

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from avgs.io.atomic import torch_save
+from avgs.io.checkpoint import load_weights_only
 from avgs.acoustics.points import AudioPoints, alpha_from_colors, alpha_from_gaussians, parse_alpha_spec
 from avgs.config import TrainConfig
 
@@ -188,10 +189,7 @@ def load_stage1(path: str | Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: stage-1 file missing (write one with 'avgs train SCENE --out X --stage1-only')")
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear error
-        raise ValueError(f"{path}: not a stage-1 file ({type(exc).__name__}: {exc})") from None
+    data = load_weights_only(path, "a stage-1 file")  # never runs code; no advice to allow it
     if not isinstance(data, dict) or data.get("format") != STAGE1_FORMAT:
         raise ValueError(f"{path}: not a stage-1 file (expected format {STAGE1_FORMAT!r})")
     if data.get("version") != STAGE1_VERSION:
