@@ -21,6 +21,7 @@ COMMANDS: dict[str, str] = {
     "prune": "Keep only the audio points some listener or source vicinity can use.",
     "bench": "Benchmark speed against error; writes benchmarks/REPORT.md.",
     "sweep": "Train scenes x settings x seeds on Ray (resumable), then score every run into one table.",
+    "export": "Export what a listener hears: an impulse response (WAV), a grid of them (SOFA), a fly-through (MP4).",
 }
 
 
