@@ -6,11 +6,18 @@ run whose checkpoint is not finished continues with ``--resume``; a failed attem
 retried ``retries`` times, each from the last checkpoint. A cancelled sweep kills the Ray
 workers of its runs with the processes they started; a subprocess that outlived its worker
 gets SIGINT (Linux: ``PR_SET_PDEATHSIG``) and stops as after Ctrl+C, and an interrupt raised
-in the worker itself sends it SIGINT too. Its last checkpoint is kept to resume from.
+in the worker itself sends it SIGINT too. Its last checkpoint is kept to resume from. The run
+holds its folder's lock (:mod:`avgs.sweep.lock`) throughout, and so do its subprocesses: a
+task placed again after a lost node waits until the lost one's ``avgs train`` has stopped.
+
+A status record still ``running`` when a run starts belongs to an attempt that never ended
+(its worker or node was lost, or the sweep itself was killed): it is kept in ``lost``
+(``host``, Ray ``node``, the checkpoint's ``iteration`` it is resumed from).
 
 :func:`execute` returns a plain dict (the status record, also written to ``status.json``):
 ``status`` is one of ``trained``, ``resumed`` (from ``resumed_from``), ``evaluated`` (finished
-before, scored now), ``failed`` (with ``returncode``, ``reason`` and ``tail``).
+before, scored now), ``failed`` (with ``returncode``, ``reason`` and ``tail``); ``node`` is the
+Ray node it ran on, ``lost`` the attempts before it that never ended.
 """
 
 from __future__ import annotations
@@ -23,8 +30,10 @@ import sys
 import time
 from pathlib import Path
 
+from avgs.sweep.lock import run_lock
 from avgs.sweep.spec import Run
-from avgs.sweep.state import FINISHED, INTERRUPTED, eval_fresh, eval_path, output_path, run_state, write_status
+from avgs.sweep.state import (FINISHED, INTERRUPTED, RUNNING, eval_fresh, eval_path, output_path, read_status,
+                              run_state, write_status)
 
 TAIL_LINES = 20
 "Lines of a failed run's output kept in its status record."
@@ -47,8 +56,9 @@ def _child_setup() -> None:  # pragma: no cover - runs in the child between fork
         pass
 
 
-def _call(argv: list[str], log: Path, threads: int, cwd: Path | None = None) -> int:
+def _call(argv: list[str], log: Path, threads: int, cwd: Path | None = None, keep: tuple[int, ...] = ()) -> int:
     """Run ``argv`` with ``threads`` CPU threads, output appended to ``log``; its exit code.
+    ``keep``: descriptors the child inherits (the run folder's lock).
 
     On KeyboardInterrupt (the task cancelled) the child is sent SIGINT, then killed after
     :data:`STOP_SECONDS`; the interrupt goes on.
@@ -59,7 +69,7 @@ def _call(argv: list[str], log: Path, threads: int, cwd: Path | None = None) -> 
         out.flush()
         proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, env=env,
                                 cwd=cwd if cwd is not None and Path(cwd).is_dir() else None,
-                                start_new_session=True, preexec_fn=_child_setup if sys.platform == "linux" else None)
+                                start_new_session=True, pass_fds=keep, preexec_fn=_child_setup if sys.platform == "linux" else None)
         try:
             while True:  # short waits: a cancelled task's KeyboardInterrupt lands between them
                 try:
@@ -125,16 +135,30 @@ def eval_argv(run: Run, threads: int, split: str) -> list[str]:
     return argv
 
 
-def execute(run: Run, threads: int = 1, retries: int = 1, split: str = "val") -> dict:
-    """Train (or resume) the run until its checkpoint is finished, then score it; the status record."""
-    t0 = time.perf_counter()
+def execute(run: Run, threads: int = 1, retries: int = 1, split: str = "val", node: str = "") -> dict:
+    """Train (or resume) the run until its checkpoint is finished, then score it; the status record.
+
+    ``node``: the Ray node it runs on (recorded). Raises :class:`~avgs.sweep.lock.FolderBusy`
+    when another process keeps the run folder.
+    """
     run.folder.mkdir(parents=True, exist_ok=True)
     log = output_path(run.folder)
-    record = {"run": run.name, "scene": run.scene, "setting": run.setting, "seed": run.seed,
-              "options": list(run.options), "host": socket.gethostname(), "status": "running",
-              "attempts": 0, "resumed_from": None, "returncode": None}
-    write_status(run.folder, record)
+
+    def waiting(holder: str) -> None:
+        with open(log, "a", encoding="utf-8") as out:
+            out.write(f"# waiting for the run folder, in use by {holder}\n")
+
+    with run_lock(run.folder, on_wait=waiting) as lock:
+        return _execute(run, threads, retries, split, node, log, lock)
+
+
+def _execute(run: Run, threads: int, retries: int, split: str, node: str, log: Path, lock: int) -> dict:
+    t0 = time.perf_counter()
     state = run_state(run, split)
+    record = {"run": run.name, "scene": run.scene, "setting": run.setting, "seed": run.seed,
+              "options": list(run.options), "host": socket.gethostname(), "node": node, "status": RUNNING,
+              "attempts": 0, "resumed_from": None, "returncode": None, "lost": _lost(run, state.iteration)}
+    write_status(run.folder, record)
     trained = state.training != FINISHED
     try:
         while state.training != FINISHED and record["attempts"] <= retries:
@@ -142,10 +166,10 @@ def execute(run: Run, threads: int = 1, retries: int = 1, split: str = "val") ->
             resume = state.training == INTERRUPTED
             if resume and record["resumed_from"] is None:
                 record["resumed_from"] = state.iteration
-            record["returncode"] = _call(train_argv(run, threads, resume), log, threads, run.workdir)
+            record["returncode"] = _call(train_argv(run, threads, resume), log, threads, run.workdir, (lock,))
             state = run_state(run, split)
         if state.training == FINISHED and split != "none" and not eval_fresh(run, split):
-            code = _call(eval_argv(run, threads, split), log, threads, run.workdir)
+            code = _call(eval_argv(run, threads, split), log, threads, run.workdir, (lock,))
             if code != 0:
                 return _end(run, record, t0, "failed", code, log, "eval")
     except BaseException:
@@ -157,6 +181,16 @@ def execute(run: Run, threads: int = 1, retries: int = 1, split: str = "val") ->
     return _end(run, record, t0, status, record["returncode"], log)
 
 
+def _lost(run: Run, iteration: int) -> list[dict]:
+    """The attempts at ``run`` that never ended, when the folder's record is still ``running``: that
+    one (with the checkpoint's ``iteration`` it left) after those its own record lists."""
+    before = read_status(run.folder) or {}
+    if before.get("status") != RUNNING:
+        return []
+    lost = [dict(x) for x in before.get("lost") or [] if isinstance(x, dict)]
+    return lost + [{"host": before.get("host"), "node": before.get("node"), "iteration": iteration}]
+
+
 def _end(run: Run, record: dict, t0: float, status: str, code: int | None, log: Path, stage: str = "train") -> dict:
     record.update(status=status, returncode=code, seconds=round(time.perf_counter() - t0, 2))
     if status in ("failed", "interrupted"):
@@ -164,5 +198,14 @@ def _end(run: Run, record: dict, t0: float, status: str, code: int | None, log: 
         record["reason"] = (f"{stage}: exit code {code}: " if code is not None else f"{stage}: ") + reason(record["tail"])
     elif status == "resumed":
         record["reason"] = f"from iteration {record['resumed_from']}"
+    if record["lost"]:
+        lost = len(record["lost"])
+        record["reason"] = (f"{record.get('reason')}; " if record.get("reason") else "") + (
+            f"after {lost} lost attempt{'s' * (lost > 1)} (node {_short(record['lost'][-1].get('node'))})")
     write_status(run.folder, record)
     return record
+
+
+def _short(node: str | None) -> str:
+    """A Ray node id as ``ray status`` and the dashboard abbreviate it (its first 8 hex digits)."""
+    return (node or "?")[:8]

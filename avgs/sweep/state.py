@@ -7,8 +7,10 @@
 - *new*: no checkpoint (a deleted checkpoint makes its run new again).
 
 ``status.json`` records what the sweep did with the folder (options, outcome, exit code, the
-last lines of the log); it is written atomically when a run starts and when it ends, and a
-folder whose recorded options differ from the sweep's is refused rather than mixed.
+last lines of the log, the Ray node); it is written atomically when a run starts (``running``)
+and when it ends; the driver ends it for a run whose worker could not (cancelled, lost beyond
+its retries). A folder whose recorded options differ from the sweep's is refused rather than
+mixed. ``sweep.lock`` is the lock a run holds while it works (:mod:`avgs.sweep.lock`).
 ``train.out`` collects the runs' stdout and stderr, attempt after attempt; ``eval-<split>.json``
 is ``avgs eval``'s report of the checkpoint (``eval-<split>-<hash>.json`` with eval options),
 fresh while newer than the checkpoint.
@@ -28,6 +30,9 @@ STATUS = "status.json"
 OUTPUT = "train.out"
 
 NEW, INTERRUPTED, FINISHED = "new", "interrupted", "finished"
+
+RUNNING = "running"
+"A status record's status while its run works (left so by an attempt that never ended)."
 
 
 def status_path(folder: Path) -> Path:
@@ -57,6 +62,13 @@ def read_status(folder: Path) -> dict | None:
 
 def write_status(folder: Path, record: dict) -> None:
     write_json(status_path(folder), record)
+
+
+def end_unfinished(folder: Path, status: str, reason: str) -> None:
+    """Give a record still ``running`` (its worker ended without writing it) its ``status`` and ``reason``."""
+    record = read_status(folder)
+    if record is not None and record.get("status") == RUNNING:
+        write_status(folder, {**record, "status": status, "reason": reason})
 
 
 def checkpoint_progress(path: Path) -> tuple[int, bool] | None:
