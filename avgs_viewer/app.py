@@ -45,6 +45,12 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--caption", action="store_true", help="add a caption naming the pose to the screenshot")
     g.add_argument("--map", choices=("off", "level", "ild"), default="off",
                    help="draw the propagation map (each ear's level, or the ILD, over listener positions) on the floor")
+    f = p.add_argument_group("fly-through video (no window; avgs_viewer.flythrough)")
+    f.add_argument("--flythrough", type=Path, default=None, metavar="PATH.json",
+                   help='a listener path, [{"t": s, "listener": [x, y, z], "yaw": deg}, ...]: write --video and exit')
+    f.add_argument("--video", type=Path, default=None, metavar="OUT.mp4", help="the fly-through's MP4 (H.264 + AAC); "
+                   "the picture is the 3D view at --size (even numbers)")
+    f.add_argument("--fps", type=float, default=30.0, help="fly-through frames per second (default 30)")
     b = p.add_argument_group("benchmark")
     b.add_argument("--bench", type=Path, default=None, metavar="OUT.md",
                    help="drive the real window with X events (XTEST; an Xvfb of its own without a display): "
@@ -136,6 +142,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"real-event drag to audio: median {lat['median_ms']:.1f} ms, p95 {lat['p95_ms']:.1f} ms; "
                   f"idle CPU {r['idle_cpu_playing']:.1f} %; orbit {r['orbit']['fps']:.1f} FPS; wrote {args.bench}")
             return 0
+        if args.flythrough is not None:  # a fly-through video, no window
+            from .flythrough import run_flythrough
+            return run_flythrough(args, scene)
         if args.screenshot is not None or args.audio is not None:
             return run_headless(args, scene)
     except (ValueError, OSError) as exc:  # bad input or an unwritable output: one line, no traceback

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from fractions import Fraction
@@ -90,18 +91,31 @@ def binaural_track(renderer, keyframes: list[Keyframe], mono: np.ndarray, block:
     def pose(k: int) -> PathPose:
         return pose_at(keyframes, (k * block + min(block, total - k * block) / 2.0) / sr)
 
-    first = pose(0)
-    stream = renderer.stream(first.listener, first.yaw, first.source)
     out, heard = [], []
-    for k in range(n_blocks):
-        p = pose(k)
-        result = renderer.move_stream(stream, p.listener, p.yaw, p.source)  # from this block on, crossfaded
-        heard.append(dataclasses.replace(result, impulse=None))
-        out.append(stream.process(x[k * block : (k + 1) * block]))
-        if progress is not None:
-            progress(k + 1, n_blocks)
-    out.append(stream.flush())
+    with warnings.catch_warnings(record=True) as caught:  # one line per kind, not one per block
+        warnings.simplefilter("always")
+        first = pose(0)
+        stream = renderer.stream(first.listener, first.yaw, first.source)
+        for k in range(n_blocks):
+            p = pose(k)
+            result = renderer.move_stream(stream, p.listener, p.yaw, p.source)  # from this block on, crossfaded
+            heard.append(dataclasses.replace(result, impulse=None))
+            out.append(stream.process(x[k * block : (k + 1) * block]))
+            if progress is not None:
+                progress(k + 1, n_blocks)
+        out.append(stream.flush())
+    _summarise(caught)
     return np.concatenate(out, axis=1)[:, :total].astype(np.float32), heard
+
+
+def _summarise(caught: list) -> None:
+    """Warn once per category of ``caught``: its first message and how many more there were."""
+    by_kind: dict = {}
+    for w in caught:
+        by_kind.setdefault(w.category, []).append(str(w.message))
+    for category, messages in by_kind.items():
+        more = f" (and {len(messages) - 1} more along the path)" if len(messages) > 1 else ""
+        warnings.warn(messages[0] + more, category, stacklevel=3)
 
 
 def render_flythrough(renderer, keyframes, mono: np.ndarray, out: str | Path, frames: Frames,
