@@ -180,20 +180,31 @@ class _GuardedFile:
         self._f = f
         self.error: OSError | None = None
 
+    def _call(self, name: str, *args):
+        if self.error is None:
+            try:
+                return getattr(self._f, name)(*args)
+            except OSError as exc:  # a buffered file fails on write, seek, tell or flush
+                self.error = exc
+        return 0
+
     def write(self, data) -> int:
-        if self.error is not None:
-            return 0
-        try:
-            return self._f.write(data)
-        except OSError as exc:
-            self.error = exc
-            return 0
+        return self._call("write", data)
+
+    def seek(self, *args) -> int:
+        return self._call("seek", *args)
+
+    def tell(self) -> int:
+        return self._call("tell")
+
+    def flush(self) -> None:
+        self._call("flush")
 
     def check(self) -> None:
         if self.error is not None:
             raise self.error
 
-    def __getattr__(self, name):  # seek, tell, read, flush, fileno: the file's own
+    def __getattr__(self, name):  # read, fileno, mode, ...: the file's own
         return getattr(self._f, name)
 
 
