@@ -20,12 +20,29 @@ DEMO_SCENE = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ck
 PROG = "avgs-viewer"
 
 
+def version() -> str:
+    """The installed package's version (pyproject.toml's)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
+
+    try:
+        return installed("avgs")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def warn(message: str) -> None:
+    """One line on standard error, as ``avgs render`` says what it changed."""
+    print(f"{PROG}: warning: {message}", file=sys.stderr)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description="Explore a trained AV-GS scene: drag a listener and a "
                                 "sound source and hear the binaural result.")
     p.add_argument("scene", nargs="?", type=Path, default=None,
                    help=f"checkpoint to open (default: the bundled demo, {DEMO_SCENE})")
     p.add_argument("--clip", type=Path, default=None, help="mono (or down-mixed) audio clip to loop")
+    p.add_argument("--version", action="version", version=f"%(prog)s {version()}")
     g = p.add_argument_group("headless export (no window)")
     g.add_argument("--screenshot", type=Path, default=None, help="write a PNG of the point pattern and exit")
     g.add_argument("--audio", type=Path, default=None, help="write the binaural WAV of the clip and exit")
@@ -45,6 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--caption", action="store_true", help="add a caption naming the pose to the screenshot")
     g.add_argument("--map", choices=("off", "level", "ild"), default="off",
                    help="draw the propagation map (each ear's level, or the ILD, over listener positions) on the floor")
+    g.add_argument("--inset", action="store_true",
+                   help="add the listener's view (G from the listener's head) in a corner, as in the window")
     f = p.add_argument_group("fly-through video (no window; avgs_viewer.flythrough)")
     f.add_argument("--flythrough", type=Path, default=None, metavar="PATH.json",
                    help='a listener path, [{"t": s, "listener": [x, y, z], "yaw": deg}, ...]: write --video and exit')
@@ -80,14 +99,18 @@ def run_headless(args: argparse.Namespace, scene: Path) -> int:
     from avgs import SceneRenderer
     from avgs.io.atomic import check_output
 
-    from .audio import load_clip
+    from .audio_path import load_clip_noted
     from .export import export_headless
 
     for path, what in ((args.screenshot, "--screenshot"), (args.audio, "--audio")):
         if path is not None:
             check_output(path, inputs=[scene, args.clip], what=what)
     renderer = SceneRenderer.load(scene)
-    clip = load_clip(args.clip, renderer.sample_rate) if args.clip else None
+    clip = None
+    if args.clip:
+        clip, notes = load_clip_noted(args.clip, renderer.sample_rate)
+        for note in notes:
+            warn(note)
     listener = args.listener
     if listener is None:
         from .state import ViewerState
@@ -97,7 +120,7 @@ def run_headless(args: argparse.Namespace, scene: Path) -> int:
     export_headless(renderer, listener=listener, yaw=args.yaw, source=args.source, screenshot=args.screenshot,
                     audio=args.audio, clip=clip, scale=args.scale, transparent=args.transparent,
                     window_size=tuple(args.size), colour_mode=args.colour_mode, legend=not args.no_legend,
-                    caption=args.caption, map_mode=args.map)
+                    caption=args.caption, map_mode=args.map, inset=args.inset, warn=warn)
     for path in (args.screenshot, args.audio):
         if path is not None:
             print(f"wrote {path}")

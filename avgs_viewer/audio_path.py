@@ -82,6 +82,10 @@ class AudioPath(QtCore.QObject):
         self._show_timer.setSingleShot(True)
         self._show_timer.timeout.connect(self._show_heard)
         self._meters_shown: tuple[float, float] | None = None
+        self.clip: np.ndarray | None = None  # the whole clip [T] looped now (what Export audio renders)
+        # What reading the clip changed (down-mixed, resampled, cut), for as long as it loops.
+        self.clip_notice = QtWidgets.QLabel()
+        window.statusBar().addPermanentWidget(self.clip_notice)
         self.meter_timer = QtCore.QTimer(self)  # runs only while sound plays
         self.meter_timer.setInterval(METER_INTERVAL_MS)
         self.meter_timer.timeout.connect(self._update_meters)
@@ -110,6 +114,7 @@ class AudioPath(QtCore.QObject):
         from .worker import LiveAudio
 
         self.renderer, self._state, self._view = renderer, state, view
+        self.clip = np.asarray(clip, dtype=np.float32)
         self.live = LiveAudio(renderer, state, self.engine, clip, on_result=self._bridge.rendered.emit,
                               on_error=lambda req, exc: self._bridge.render_failed.emit(req, f"{type(exc).__name__}: {exc}"),
                               on_refined=self._bridge.refined.emit)
@@ -117,6 +122,32 @@ class AudioPath(QtCore.QObject):
         live = self.live
         engine = self.engine  # sound first: paints wait for the filter and for its first block to leave the engine
         self.plotter.hold = lambda: not live.worker.wait_idle(0.0) or engine.switch_pending
+
+    def read_clip(self, path, sample_rate: int) -> np.ndarray:
+        """The clip at ``path`` as the explorer loops it; what reading changed (down-mixed, resampled,
+        cut at :data:`CLIP_SECONDS`) is said in the status bar (whole in its tooltip). Raises
+        ValueError or FileNotFoundError naming the file."""
+        clip, notes = load_clip_noted(path, sample_rate)
+        self.show_clip_notes(notes)
+        return clip
+
+    def show_clip_notes(self, notes: list[str]) -> None:
+        text = "; ".join(notes)
+        self.clip_notice.setText(text)
+        self.clip_notice.setToolTip(text)
+        if text:
+            self.window.statusBar().showMessage(text, 10000)
+
+    def set_clip(self, clip: np.ndarray) -> None:
+        """Loop another clip [T] (at the scene's rate) from the next block."""
+        self.clip = np.asarray(clip, dtype=np.float32)
+        self.live.set_clip(self.clip)
+
+    def export_audio(self) -> np.ndarray:
+        """[2, T] float32: the whole clip heard at the pose playing now (:func:`export_clip`)."""
+        if self.live is None or self.renderer is None:
+            raise ValueError("no binaural render yet: wait for the scene to load")
+        return export_clip(self.renderer, self.live, self.clip)
 
     def stop(self) -> None:
         """The scene's LiveAudio closed (the engine plays on)."""
@@ -217,3 +248,35 @@ class AudioPath(QtCore.QObject):
             self._meters_shown = (left, right)
         if not self.engine.playing and max(left, right) <= SILENCE_DB:
             self.meter_timer.stop()
+
+
+CLIP_SECONDS = 30.0
+"The longest clip the explorer loops; a longer one is cut, and says so."
+
+
+def load_clip_noted(path, sample_rate: int, max_seconds: float = CLIP_SECONDS) -> tuple[np.ndarray, list[str]]:
+    """A clip as the explorer loops it (mono float32 [T] at ``sample_rate``, at most ``max_seconds``)
+    and notes on what reading changed (down-mixed, resampled, cut), each naming the file."""
+    from pathlib import Path
+
+    from avgs.io.audio_input import read_mono_noted
+
+    mono, notes = read_mono_noted(path, sample_rate, max_seconds=max_seconds)
+    return mono, [f"clip {Path(path).name}: {note}" for note in notes]
+
+
+def export_clip(renderer: TrainedScene, live: LiveAudio, clip: np.ndarray) -> np.ndarray:
+    """[2, T] float32: the whole ``clip`` [T] (not the loop the engine plays, which its seam's
+    crossfade makes shorter) as heard at the pose playing now: through the pose's filter, or
+    rendered in full by the renderer's own synthesis once that pose's loop has been (a settled pose
+    of a model whose render is not its filter)."""
+    from avgs.config import SynthesisConfig
+
+    heard, refined = live.heard, live.refined
+    if heard is None:
+        raise ValueError("no binaural render yet: wait for the scene to load")
+    pose = heard.request.pose
+    full = refined is not None and refined.seq == heard.request.seq
+    result = renderer.render(listener=pose.listener, yaw=pose.yaw, mono=np.asarray(clip, dtype=np.float32),
+                             source=pose.source if renderer.source_aware else None, synthesis=None if full else SynthesisConfig(method="filter"))
+    return np.asarray(result.binaural, dtype=np.float32)

@@ -81,8 +81,43 @@ def write_wav(path: str | Path, binaural: np.ndarray, sample_rate: int, inputs=(
     return atomic.write_wav(path, binaural, sample_rate, make_parents=False)
 
 
+@contextlib.contextmanager
+def scaled_marks(plotter: Any, scale: int) -> Iterator[None]:
+    """Every 3D actor's point size and line width (in every renderer of the plotter's window:
+    the scene, the handles' layer, the axes marker) ``scale`` times larger while the block runs,
+    restored after: a picture rendered ``scale`` times larger (in tiles, whose text VTK already
+    scales) then looks as the window does, not thinner."""
+    saved = []
+    if scale != 1:
+        renderers = plotter.render_window.GetRenderers()
+        renderers.InitTraversal()
+        for _ in range(renderers.GetNumberOfItems()):
+            ren = renderers.GetNextItem()
+            actors = ren.GetActors()
+            actors.InitTraversal()
+            for _ in range(actors.GetNumberOfItems()):
+                prop = actors.GetNextActor().GetProperty()
+                saved.append((prop, prop.GetPointSize(), prop.GetLineWidth()))
+                prop.SetPointSize(prop.GetPointSize() * scale)
+                prop.SetLineWidth(prop.GetLineWidth() * scale)
+            widget = getattr(ren, "axes_widget", None)
+            axes = None if widget is None else widget.GetOrientationMarker()
+            if axes is not None and hasattr(axes, "GetXAxisShaftProperty"):
+                for get in ("GetXAxisShaftProperty", "GetYAxisShaftProperty", "GetZAxisShaftProperty"):
+                    prop = getattr(axes, get)()
+                    saved.append((prop, prop.GetPointSize(), prop.GetLineWidth()))
+                    prop.SetLineWidth(prop.GetLineWidth() * scale)
+    try:
+        yield
+    finally:
+        for prop, size, width in saved:
+            prop.SetPointSize(size)
+            prop.SetLineWidth(width)
+
+
 def write_screenshot(plotter: Any, path: str | Path, scale: int = 1, transparent: bool = False, inputs=()) -> Path:
-    """Save the plotter's view as a PNG, ``scale`` times its window size; never over one of ``inputs``."""
+    """Save the plotter's view as a PNG, ``scale`` times its window size, points and lines
+    ``scale`` times wider (:func:`scaled_marks`); never over one of ``inputs``."""
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"screenshot must be a .png file, got {path}")
@@ -90,7 +125,8 @@ def write_screenshot(plotter: Any, path: str | Path, scale: int = 1, transparent
     _, _, scale = check_picture_size(max(size[0], MIN_SIZE), max(size[1], MIN_SIZE), scale)
     atomic.check_output(path, inputs=inputs, what="screenshot")
     with atomic.atomic_path(path, make_parents=False) as tmp:
-        plotter.screenshot(str(tmp), transparent_background=bool(transparent), scale=scale, return_img=False)
+        with scaled_marks(plotter, scale):
+            plotter.screenshot(str(tmp), transparent_background=bool(transparent), scale=scale, return_img=False)
     return path
 
 
@@ -98,7 +134,8 @@ def export_headless(renderer: TrainedScene, *, listener: Position, yaw: float, s
                     screenshot: str | Path | None = None,
                     audio: str | Path | None = None, clip: np.ndarray | None = None, scale: int = 1,
                     transparent: bool = False, window_size=(1024, 768), colour_mode: str = "vicinity",
-                    legend: bool = True, caption: bool = False, map_mode: str = "off") -> RenderResult:
+                    legend: bool = True, caption: bool = False, map_mode: str = "off", inset: bool = False,
+                    warn=None) -> RenderResult:
     """Render one pose with no window: a PNG of the point pattern and/or the binaural WAV.
 
     ``renderer`` is an ``avgs.SceneRenderer`` (:class:`~avgs_viewer.trained_scene.TrainedScene`);
@@ -106,8 +143,11 @@ def export_headless(renderer: TrainedScene, *, listener: Position, yaw: float, s
     ``clip`` is the mono signal to binauralise (default: the bundled demo clip, else one second
     of a test tone).
     ``legend`` and ``caption`` (the pose) are drawn where they cover no handle; ``map_mode``
-    ``"level"`` or ``"ild"`` adds the propagation map on the floor. The WAV is what the
-    explorer plays: the clip through the pose's filter. Returns the ``RenderResult``.
+    ``"level"`` or ``"ild"`` adds the propagation map on the floor; ``inset`` G seen from the
+    listener's head (a checkpoint with G). All are placed by one layout
+    (:mod:`avgs_viewer.overlay_layout`). The WAV is what the explorer plays: the clip through the
+    pose's filter. ``warn(message)`` hears of positions moved into the room and of overlays
+    shrunk or left out (as the window's status bar does). Returns the ``RenderResult``.
     """
     from avgs.config import SynthesisConfig
 
@@ -115,9 +155,14 @@ def export_headless(renderer: TrainedScene, *, listener: Position, yaw: float, s
 
     if screenshot is not None:
         check_picture_size(*window_size, scale)
-    state = ViewerState(renderer.bounds, renderer.source if source is None else source,
-                        listener=listener, yaw=yaw, has_rgb=renderer.gaussians is not None,
+    warn = warn or (lambda message: None)
+    state = ViewerState(renderer.bounds, renderer.source, yaw=yaw, has_rgb=renderer.gaussians is not None,
                         outline=renderer.outline)
+    state.events.clamped.connect(warn)  # typed positions moved into the room are said, as in the window
+    state.events.wall.connect(warn)
+    if source is not None:
+        state.set_source(source)
+    state.set_listener(listener, keep_height=False)
     state.set_colour_mode(colour_mode)
     if clip is None:
         clip = default_clip(renderer.sample_rate)
@@ -139,7 +184,12 @@ def export_headless(renderer: TrainedScene, *, listener: Position, yaw: float, s
 
                 floor_map = PropagationView(plotter, renderer, state, mode=map_mode)
                 floor_map.draw_now()
+            rep = None
+            if inset:
+                rep = _show_listener_view(plotter, renderer, state, warn)
             with annotated(view, legend=legend, caption=caption):
+                for note in view.overlay_notes:
+                    warn(note)
                 write_screenshot(plotter, screenshot, scale=scale, transparent=transparent)
             if floor_map is not None:
                 floor_map.close()
@@ -149,6 +199,20 @@ def export_headless(renderer: TrainedScene, *, listener: Position, yaw: float, s
     if audio is not None:
         write_wav(audio, result.binaural, renderer.sample_rate)
     return result
+
+
+def _show_listener_view(plotter: Any, renderer: TrainedScene, state: Any, warn) -> Any:
+    """G from the listener's head as the window's inset, or a warning why there is none."""
+    from avgs.render.listener_view import ListenerView
+
+    from .propagation_view import show_inset
+
+    path = getattr(renderer, "path", None)
+    view = ListenerView.load(path) if path is not None and renderer.gaussians is not None else None
+    if view is None:
+        warn("listener's view inset left out: the checkpoint carries no Gaussians G")
+        return None
+    return show_inset(plotter, view.render(state.listener, state.yaw, 192, 144))
 
 
 DEMO_CLIP = Path(__file__).resolve().parents[1] / "assets" / "demo" / "clip.wav"

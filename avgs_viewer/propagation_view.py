@@ -29,6 +29,7 @@ from typing import Any, Callable
 import numpy as np
 import pyvista as pv
 
+from .overlay_layout import OverlayBoard, text_px
 from .state import ViewerState
 from .trained_scene import TrainedScene
 
@@ -343,11 +344,12 @@ class PropagationView:
                 mesh, scalars="map", cmap=CMAPS[kind], clim=clim, nan_opacity=0.0, opacity=MAP_OPACITY,
                 lighting=False, name="propagation_map", pickable=False, reset_camera=False,
                 show_scalar_bar=True,
-                scalar_bar_args=dict(title=bar_title(kind), vertical=True, position_x=0.86, position_y=0.3,
-                                     height=0.42, width=0.05, n_labels=5, fmt="%+.1f", color=(0.9, 0.9, 0.9),
-                                     title_font_size=16, label_font_size=14),
+                scalar_bar_args=dict(title=bar_title(kind), vertical=True, n_labels=5, fmt="%+.1f",
+                                     color=(0.9, 0.9, 0.9)),
             )
             self._shown_kind = kind
+            bar = self.plotter.scalar_bars[bar_title(kind)]
+            OverlayBoard.of(self.plotter).put("colour_bar", lambda: True, lambda r, _s, _o: place_bar(bar, r))
         else:
             self._mesh.cell_data["map"] = values.ravel()
             self._actor.mapper.scalar_range = clim
@@ -359,7 +361,21 @@ class PropagationView:
             title = bar_title(self._shown_kind) if self._shown_kind else None
             if title and title in self.plotter.scalar_bars:
                 self.plotter.remove_scalar_bar(title, render=False)
+            OverlayBoard.of(self.plotter).remove("colour_bar")
         self._actor, self._mesh, self._shown_kind = None, None, None
+
+
+def place_bar(bar, rect) -> None:
+    """The colour bar (a ``vtkScalarBarActor``) inside ``rect`` (normalised; None: hidden), its
+    title, bar and labels all within it."""
+    if rect is None:
+        bar.SetVisibility(False)
+        return
+    bar.SetVisibility(True)
+    bar.SetUnconstrainedFontSize(False)  # title and labels sized to fit the rectangle
+    bar.SetBarRatio(0.3)
+    bar.SetPosition(rect[0], rect[1])
+    bar.SetPosition2(rect[2] - rect[0], rect[3] - rect[1])
 
 
 class ListenerInset:
@@ -373,13 +389,11 @@ class ListenerInset:
 
     def __init__(self, plotter: pv.Plotter, state: ViewerState, load_view: Callable[[], Any],
                  post: Callable[[Callable[[], None]], None] = _run_now, timer=None, settle_ms: int = 300,
-                 size: tuple[int, int] = (192, 144), corner: tuple[float, float] = (0.74, 0.01),
-                 extent: float = 0.25):
+                 size: tuple[int, int] = (192, 144)):
         from .newest import RenderWorker
 
         self.plotter, self.state = plotter, state
         self.size = size
-        self._corner, self._extent = corner, extent
         self._post = post
         self._load_view = load_view
         self._view = None
@@ -412,6 +426,9 @@ class ListenerInset:
         if self._timer is not None:
             self._timer.stop()
         self.worker.close()
+        if self._rep is not None:
+            hide_inset(self.plotter, self._rep)
+            self._rep = None
 
     def _on_pose(self, _value: Any) -> None:
         if self._timer is not None:
@@ -438,23 +455,23 @@ class ListenerInset:
         self.available = False
 
     def relayout(self) -> None:
-        """Place the inset and its caption again for the view's new size (its aspect changed)."""
+        """Place the inset and its caption again for the view's new size (the overlays' layout)."""
         if self._subscriptions and self.image is not None:
-            self._rep = show_inset(self.plotter, self.image, self._rep, self._corner, self._extent)
+            OverlayBoard.of(self.plotter).relayout()
 
     # plotter thread
     def _show(self, pose, image: np.ndarray) -> None:
         if not self._subscriptions:
             return
         self.image, self.shown_pose = image, pose
-        self._rep = show_inset(self.plotter, image, self._rep, self._corner, self._extent)
+        self._rep = show_inset(self.plotter, image, self._rep)
         self.plotter.render()
 
 
-def show_inset(plotter: pv.Plotter, image: np.ndarray, rep=None, corner=(0.74, 0.01), extent: float = 0.25):
-    """Show ``image`` [H, W, 3] uint8 in ``plotter``'s view, its lower left corner at ``corner``
-    and ``extent`` of the view's width wide (normalised viewport units); returns the VTK
-    representation to pass back for the next image (headless export can call this directly)."""
+def show_inset(plotter: pv.Plotter, image: np.ndarray, rep=None):
+    """Show ``image`` [H, W, 3] uint8 in ``plotter``'s view with its title above it, where the
+    overlays' layout puts it (:mod:`avgs_viewer.overlay_layout`, the lower right corner); returns
+    the VTK representation to pass back for the next image (headless export calls this directly)."""
     from vtkmodules.vtkInteractionWidgets import vtkLogoRepresentation
 
     h, w, _ = image.shape
@@ -469,15 +486,31 @@ def show_inset(plotter: pv.Plotter, image: np.ndarray, rep=None, corner=(0.74, 0
         rep.GetImageProperty().SetOpacity(1.0)
         rep.GetBorderProperty().SetOpacity(0.0)
         plotter.renderer.AddViewProp(rep)
-    win_w, win_h = plotter.window_size
-    height = extent * (h / w) * (win_w / max(win_h, 1))  # the image's own aspect
-    rep.SetPosition(*corner)
-    rep.SetPosition2(extent, height)
     rep.SetImage(data)
     rep.Modified()
-    plotter.add_text(INSET_CAPTION, position=(corner[0], corner[1] + height + 0.005), viewport=True, font_size=9,
-                     color=(0.85, 0.85, 0.85), name="listener_view_caption")
+    title = plotter.add_text(INSET_CAPTION, position=(0.0, 0.0), viewport=True, font_size=9,
+                             color=(0.85, 0.85, 0.85), name="listener_view_caption")
+
+    def place(rect, _scale, out) -> None:
+        rep.SetVisibility(rect is not None)
+        title.SetVisibility(rect is not None)
+        if rect is None:
+            return
+        line = text_px(out.height) / out.height  # the title's line, over the image
+        rep.SetPosition(rect[0], rect[1])
+        rep.SetPosition2(rect[2] - rect[0], rect[3] - rect[1] - line)
+        title.SetPosition(rect[0], rect[3] - line + 2.0 / out.height)
+        title.GetTextProperty().SetFontSize(max(int(0.7 * text_px(out.height)), 8))
+
+    OverlayBoard.of(plotter).put("inset", lambda: h / w, place)
     return rep
+
+
+def hide_inset(plotter: pv.Plotter, rep) -> None:
+    """The inset and its title out of ``plotter``'s view (and out of the overlays' layout)."""
+    plotter.renderer.RemoveViewProp(rep)
+    plotter.remove_actor("listener_view_caption", render=False)
+    OverlayBoard.of(plotter).remove("inset")
 
 
 class MapControls:

@@ -27,6 +27,9 @@ EAR_NAMES = ("left ear", "right ear")
 DIRECT_COLOUR = QtGui.QColor(20, 160, 60)
 "The direct sound's marks: a dashed line at each ear's arrival, and its times and ITD in words."
 MIN_PLOT_HEIGHT = 150
+DECAY_TITLE = "Energy decay (dB)"
+T60_LABEL = "T60"
+"The -60 dB line's label, in the margin right of the decay plot."
 FONT_PT = 8
 
 
@@ -78,16 +81,36 @@ class ResponsePlot(QtWidgets.QWidget):
 
     # ------------------------------------------------------------------ layout
     def _areas(self) -> tuple[QtCore.QRectF, QtCore.QRectF]:
-        """(waveform area, decay area) in widget pixels, axis labels outside them."""
+        """(waveform area, decay area) in widget pixels, axis labels outside them (the decay's
+        right margin holds its T60 line's label)."""
         fm = self.fontMetrics()
         left_pad = fm.horizontalAdvance("-90 dB") + 8
+        right_pad = fm.horizontalAdvance(T60_LABEL) + 8
         top, bottom = fm.height() + 4, 2 * fm.height() + 6
         w, h = float(self.width()), float(self.height())
         split = 0.58 * w
         wave = QtCore.QRectF(fm.horizontalAdvance("Right") + 10, top, split - fm.horizontalAdvance("Right") - 22,
                              h - top - bottom)
-        decay = QtCore.QRectF(split + left_pad, top, w - split - left_pad - 10, h - top - bottom)
+        decay = QtCore.QRectF(split + left_pad, top, w - split - left_pad - right_pad, h - top - bottom)
         return wave, decay
+
+    def decay_labels(self) -> dict[str, QtCore.QRectF]:
+        """Where the decay plot's own labels go (widget pixels): its title and T60 in the row above
+        the plot, the T60 line's label in the margin to its right; none inside the plot (the
+        curves' area) nor over another."""
+        fm = self.fontMetrics()
+        _, area = self._areas()
+        row_top = area.top() - 1 - fm.height()
+        t60 = self.summary.t60_text() if self.summary is not None else ""
+        t60_w = min(float(fm.horizontalAdvance(t60)), area.width() * 0.62)
+        title_w = min(float(fm.horizontalAdvance(DECAY_TITLE)), area.width() - t60_w - 8)
+        y60 = area.top() + area.height() * T60_LINE_DB / DECAY_FLOOR_DB
+        return {
+            "title": QtCore.QRectF(area.left(), row_top, max(title_w, 0.0), fm.height()),
+            "t60": QtCore.QRectF(area.right() - t60_w, row_top, t60_w, fm.height()),
+            "line": QtCore.QRectF(area.right() + 4, y60 - fm.height() / 2, fm.horizontalAdvance(T60_LABEL),
+                                  fm.height()),
+        }
 
     def trace_for(self, columns: int) -> Trace | None:
         if self.summary is None:
@@ -178,9 +201,11 @@ class ResponsePlot(QtWidgets.QWidget):
     def _paint_decay(self, p: QtGui.QPainter, area: QtCore.QRectF, trace: Trace, text: QtGui.QColor) -> None:
         fm = self.fontMetrics()
         p.setPen(text)
-        p.drawText(QtCore.QPointF(area.left(), area.top() - 4), "Energy decay (dB)")
-        t60 = self.summary.t60_text()  # inside the box's top right corner, which the decaying curves leave empty
-        p.drawText(QtCore.QPointF(area.right() - fm.horizontalAdvance(t60) - 4, area.top() + fm.ascent() + 3), t60)
+        labels = self.decay_labels()  # above the plot and in its right margin: never under the curves
+        for name, label in (("title", DECAY_TITLE), ("t60", self.summary.t60_text())):
+            r = labels[name]
+            p.drawText(r, QtCore.Qt.AlignmentFlag.AlignLeft | QtCore.Qt.AlignmentFlag.AlignBottom,
+                       fm.elidedText(label, QtCore.Qt.TextElideMode.ElideRight, int(r.width()) + 1))
         self._time_axis(p, area, text)
         floor = DECAY_FLOOR_DB
 
@@ -199,7 +224,7 @@ class ResponsePlot(QtWidgets.QWidget):
         y60 = float(y_of(T60_LINE_DB))
         p.setPen(QtGui.QPen(text, 1, QtCore.Qt.PenStyle.DashLine))
         p.drawLine(QtCore.QPointF(area.left(), y60), QtCore.QPointF(area.right(), y60))
-        p.drawText(QtCore.QPointF(area.right() - fm.horizontalAdvance("-60 dB") - 2, y60 - 3), "-60 dB")
+        p.drawText(labels["line"], QtCore.Qt.AlignmentFlag.AlignLeft | QtCore.Qt.AlignmentFlag.AlignVCenter, T60_LABEL)
         x = area.left() + (np.arange(trace.decay_db.shape[1]) + 0.5) * area.width() / trace.decay_db.shape[1]
         p.setRenderHint(QtGui.QPainter.RenderHint.Antialiasing, True)
         for ear in range(2):

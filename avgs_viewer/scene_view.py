@@ -28,6 +28,7 @@ import pyvista as pv
 
 from . import colors
 from .drag import pixel_radius
+from .overlay_layout import Layout, OverlayBoard
 from .state import ColourMode, ViewerState
 from .trained_scene import TrainedScene
 
@@ -40,8 +41,7 @@ FAST_POINTS = 4000
 "Points drawn while anything moves (a fixed random subset): a software-GL frame then costs a fraction, leaving the CPU to the sound."
 HALO = ((1.16, (1.0, 1.0, 1.0)), (1.36, (0.02, 0.02, 0.03)))
 "Rings around each handle: (radius as a multiple of the handle's, colour), inner first."
-CORNERS = ("upper right", "upper left", "lower right", "lower left")
-AXES_VIEWPORT = (0.0, 0.0, 0.16, 0.16)  # the axes marker's corner (normalised viewport)
+AXES_VIEWPORT = (0.0, 0.0, 0.16, 0.16)  # the axes marker's corner until the overlays' layout places it
 
 
 class VtkProjector:
@@ -87,17 +87,6 @@ def disable_vtk_keys(plotter: Any) -> None:
         return
     iren.clear_key_event_callbacks()              # PyVista's own key table
     iren.interactor.RemoveObservers("CharEvent")  # the interactor style's OnChar
-
-
-def _box_overlaps(box: tuple[float, float, float, float], circles: list[tuple[np.ndarray, float]]) -> float:
-    """How deep the worst circle (centre [2] px, radius px) reaches into box (x0, y0, x1, y1); 0 when none."""
-    x0, y0, x1, y1 = box
-    worst = 0.0
-    for c, r in circles:
-        dx = max(x0 - c[0], 0.0, c[0] - x1)
-        dy = max(y0 - c[1], 0.0, c[1] - y1)
-        worst = max(worst, r - float(np.hypot(dx, dy)))
-    return worst
 
 
 class SceneView:
@@ -149,12 +138,15 @@ class SceneView:
         self._caption = None
         self._legend_box = self._caption_box = None
         self.overlay = None
+        self.board = OverlayBoard.of(plotter)  # where the axes, inset, colour bar, legend and caption go
+        self.board.avoid = self._avoid
         self._refresh_points()
         if scene.outline is not None:
             plotter.add_mesh(_outline_mesh(scene.outline), color=(0.75, 0.75, 0.8), line_width=2,
                              lighting=False, name="outline", pickable=False, reset_camera=False)
         if axes:
             plotter.add_axes(interactive=False, line_width=2, viewport=AXES_VIEWPORT)
+            self.board.put("axes", lambda: True, self._place_axes, relayout=False)
         self._build_handles()
         self._first_person = False
         self._place_handles()
@@ -163,6 +155,7 @@ class SceneView:
         if getattr(plotter, "iren", None) is not None:  # a camera orbit / pan / zoom by the mouse
             self._camera_observer = plotter.iren.interactor.AddObserver(
                 "StartInteractionEvent", self._camera_moved_by_mouse)
+        self.board.relayout()  # the axes marker (and whatever else the plotter shows) placed
         if legend:
             self.show_legend()
 
@@ -277,79 +270,58 @@ class SceneView:
         w, h = self.plotter.render_window.GetSize()
         return max(int(w), 1), max(int(h), 1)
 
-    def _occupied(self) -> list[tuple[float, float, float, float]]:
-        """Boxes (display px) that an annotation must not cover: other renderers drawn in
-        part of the window (the axes marker, an inset view), with a text line of room above
-        them for their titles, and the legend or caption already shown."""
-        w, h = self._window_pixels()
-        boxes = []
-        renderers = self.plotter.render_window.GetRenderers()
-        renderers.InitTraversal()
-        for _ in range(renderers.GetNumberOfItems()):
-            ren = renderers.GetNextItem()
-            x0, y0, x1, y1 = ren.GetViewport()
-            if ren is self.overlay or (x1 - x0) * (y1 - y0) > 0.5:
-                continue  # the handles' layer, the main view
-            boxes.append((x0 * w, y0 * h, x1 * w, y1 * h + max(16.0, 0.035 * h)))
-        for box in (self._legend_box, self._caption_box):
-            if box is not None:
-                boxes.append(box)
-        return boxes
-
-    def _free_corner(self, size_px: tuple[float, float]) -> tuple[str, tuple]:
-        """Where to put a box of ``size_px`` (display px): the first corner of CORNERS, moved
-        clear of whatever :meth:`_occupied` holds there, that covers no handle; else the place
-        that covers least. Returns (corner, box (x0, y0, x1, y1))."""
+    def _avoid(self) -> list[tuple[np.ndarray, float]]:
+        """The handles on screen (pixels), projected with the camera's aspect for the window now."""
         render_now = getattr(self.plotter, "render_now", self.plotter.render)
         render_now()  # the camera's aspect must be the window's before projecting
-        w, h = self._window_pixels()
-        pad = max(4.0, 0.012 * h)
-        bw, bh = size_px
-        circles = self.handle_circles()
-        occupied = self._occupied()
-        best = None
-        for corner in CORNERS:
-            top, right = corner.startswith("upper"), corner.endswith("right")
-            x0 = w - pad - bw if right else pad
-            ys = [h - pad - bh if top else pad]
-            for o in occupied:  # also just past each thing in that corner
-                if o[0] < x0 + bw and x0 < o[2]:
-                    ys.append(o[1] - pad - bh if top else o[3] + pad)
-            for y0 in ys:
-                box = (x0, y0, x0 + bw, y0 + bh)
-                cost = _box_overlaps(box, circles)
-                for o in occupied:
-                    overlap = max(0.0, min(box[2], o[2]) - max(box[0], o[0])) * max(0.0, min(box[3], o[3]) - max(box[1], o[1]))
-                    cost += 1000.0 * overlap / (bw * bh)
-                cost += 1000.0 * (max(0.0, -y0) + max(0.0, y0 + bh - h)) / bh  # off the picture
-                if best is None or cost < best[0]:
-                    best = (cost, corner, box)
-                if cost <= 0:
-                    return corner, box
-        return best[1], best[2]
+        return self.handle_circles()
+
+    def relayout(self) -> Layout:
+        """Place every overlay again (:mod:`avgs_viewer.overlay_layout`): after a resize, a handle
+        moved under a legend, or an overlay shown or hidden."""
+        return self.board.relayout()
+
+    @property
+    def overlay_notes(self) -> list[str]:
+        """What the last layout shrank or left out, in words."""
+        return [] if self.board.last is None else list(self.board.last.notes)
+
+    def _place_axes(self, rect, _scale: float, _layout) -> None:
+        widget = getattr(self.plotter.renderer, "axes_widget", None)
+        if widget is not None and rect is not None:
+            widget.SetViewport(*rect)
 
     def show_legend(self) -> None:
-        """The colour mode's legend inside the 3D view, sized to the window, in a corner that
-        covers neither handle (as ``legend_corner``)."""
+        """The colour mode's legend inside the 3D view, sized to the window, placed by the overlays'
+        layout in a corner that covers neither handle (as ``legend_corner``)."""
         rows = [[text, [c / 255 for c in colour]] for text, colour in self.legend_rows()]
         rows += [["listener (arrow: facing)", list(colors.LISTENER_COLOUR)], ["source", list(colors.SOURCE_COLOUR)]]
         self.hide_legend()
-        w, h = self._window_pixels()
+        _, h = self._window_pixels()
         row = float(np.clip(0.028 * h, 11.0, 26.0))  # pixels per row
         longest = max(len(text) for text, _ in rows)
-        size_px = (min(0.6 * w, row * (1.8 + 0.55 * longest)), min(0.6 * h, row * len(rows) + 0.6 * row))
-        corner, box = self._free_corner(size_px)
-        size = (size_px[0] / w, size_px[1] / h)
-        legend = self.plotter.add_legend(rows, bcolor=[c / 255 for c in BACKGROUND], size=size,
-                                         loc=corner, name="legend", face="circle")
-        legend.SetPosition(box[0] / w, box[1] / h)
-        legend.SetPosition2(*size)
+        size_px = (row * (1.8 + 0.55 * longest), row * len(rows) + 0.6 * row)
+        legend = self.plotter.add_legend(rows, bcolor=[c / 255 for c in BACKGROUND], size=(0.2, 0.2),
+                                         loc="upper right", name="legend", face="circle")
         self._legend_shown = True
-        self.legend_corner, self._legend_box = corner, box
+
+        def place(rect, _scale, out) -> None:
+            if rect is None:
+                legend.SetVisibility(False)
+                self.legend_corner = self._legend_box = None
+                return
+            legend.SetVisibility(True)
+            legend.SetPosition(rect[0], rect[1])
+            legend.SetPosition2(rect[2] - rect[0], rect[3] - rect[1])
+            self.legend_corner, self._legend_box = out.corners["legend"], out.pixels["legend"]
+
+        self.board.put("legend", lambda: size_px, place)
 
     def hide_legend(self) -> None:
         if self._legend_shown:
+            self.board.remove("legend", relayout=False)
             self.plotter.remove_legend(render=False)
+            self.board.relayout()
         self._legend_shown = False
         self.legend_corner = self._legend_box = None
 
@@ -361,35 +333,47 @@ class SceneView:
                 f"source   {xyz(self.state.source)}")
 
     def show_caption(self) -> None:
-        """The pose as a caption in a free corner (``caption_corner``), sized to the window."""
+        """The pose as a caption placed by the overlays' layout (``caption_corner``), sized to the window."""
         from vtkmodules.vtkRenderingCore import vtkTextActor
 
         self.hide_caption()
         text = self.caption_text()
-        w, h = self._window_pixels()
-        font = int(round(float(np.clip(0.02 * h, 10.0, 18.0))))
+        _, h = self._window_pixels()
+        font = float(np.clip(0.02 * h, 10.0, 18.0))
         lines = text.split("\n")
         size_px = (0.62 * font * max(len(line) for line in lines) + font, 1.25 * font * len(lines) + 0.6 * font)
-        corner, box = self._free_corner(size_px)
         actor = vtkTextActor()
         actor.SetInput(text)
         tp = actor.GetTextProperty()
         tp.SetFontFamilyToCourier()
-        tp.SetFontSize(font)
         tp.SetColor(0.92, 0.92, 0.95)
         tp.SetBackgroundColor(*[c / 255 for c in BACKGROUND])
         tp.SetBackgroundOpacity(0.85)
         tp.SetVerticalJustificationToBottom()
         coord = actor.GetPositionCoordinate()
         coord.SetCoordinateSystemToNormalizedViewport()
-        coord.SetValue((box[0] + 0.5 * font) / w, (box[1] + 0.3 * font) / h)
         self.plotter.renderer.AddViewProp(actor)
         self._caption = actor
-        self.caption_corner, self._caption_box = corner, box
+
+        def place(rect, scale, out) -> None:
+            if rect is None:
+                actor.SetVisibility(False)
+                self.caption_corner = self._caption_box = None
+                return
+            f = max(int(font * scale), 6)
+            box = out.pixels["caption"]
+            tp.SetFontSize(f)
+            actor.SetVisibility(True)
+            coord.SetValue((box[0] + 0.5 * f) / out.width, (box[1] + 0.3 * f) / out.height)
+            self.caption_corner, self._caption_box = out.corners["caption"], box
+
+        self.board.put("caption", lambda: size_px, place)
 
     def hide_caption(self) -> None:
         if self._caption is not None:
+            self.board.remove("caption", relayout=False)
             self.plotter.renderer.RemoveViewProp(self._caption)
+            self.board.relayout()
         self._caption = None
         self.caption_corner = self._caption_box = None
 
@@ -462,6 +446,9 @@ class SceneView:
         for event, cb in self._subscriptions:
             event.disconnect(cb)
         self._subscriptions = []
+        for name in ("axes", "legend", "caption"):
+            self.board.remove(name, relayout=False)
+        self.board.avoid = lambda: ()
         if self._camera_observer is not None and getattr(self.plotter, "iren", None) is not None:
             self.plotter.iren.interactor.RemoveObserver(self._camera_observer)
             self._camera_observer = None

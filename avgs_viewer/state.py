@@ -7,8 +7,9 @@ a widget that mirrors the state can set it back without an endless loop.
 
 Coordinates are world coordinates, yaw is degrees counter-clockwise from +x
 (ARCHITECTURE.md). A drag moves the listener at its own height, the source anywhere;
-both stay inside the room's floor plan (``avgs_viewer.outline``), or the scene's box when
-the checkpoint has no outline. A scene trained with one source position keeps its source
+both stay inside the room's floor plan and the scene's box (:func:`avgs.data.floor_plan.keep_inside`,
+the clamp ``avgs render`` uses too), or the box alone when the checkpoint has no outline; a
+source put in a wall (within :data:`WALL_NOTE` of one) is noted (the ``wall`` event). A scene trained with one source position keeps its source
 where it is (``source_fixed``): a move is refused with the reason (the ``refused`` event).
 """
 
@@ -20,7 +21,10 @@ from typing import Any, Callable, Generic, TypeVar
 
 import numpy as np
 
-from .outline import Footprint
+from .outline import Footprint, keep_inside
+
+WALL_NOTE = 0.05
+"A source nearer a wall than this (world units: metres) is said to be in it."
 
 
 class ColourMode(str, enum.Enum):
@@ -63,9 +67,10 @@ class ViewerEvents:
     """One :class:`Event` per state field, plus ``pose`` for any listener/yaw/source change."""
 
     NAMES = ("listener", "yaw", "source", "pose", "colour_mode", "slice_height",
-             "volume", "playing", "interacting", "clamped", "refused")
+             "volume", "playing", "interacting", "clamped", "refused", "wall")
     """``clamped`` carries a message naming a position that was moved back inside the scene;
-    ``refused`` the reason a move was refused (the source of a one-source scene)."""
+    ``refused`` the reason a move was refused (the source of a one-source scene); ``wall`` a note
+    that the source is in a wall (a clamp that put it there says so in ``clamped`` instead)."""
 
     listener: Event[np.ndarray]  # [3] world
     yaw: Event[float]  # degrees
@@ -78,6 +83,7 @@ class ViewerEvents:
     interacting: Event[bool]
     clamped: Event[str]
     refused: Event[str]
+    wall: Event[str]
 
     def __init__(self):
         for name in self.NAMES:
@@ -153,12 +159,23 @@ class ViewerState:
         """``xyz`` moved to the nearest place inside the room's floor plan and height (the
         scene's box without an outline); a move by the user (``what`` given) that had to be
         clamped emits ``clamped`` with a message naming both positions."""
-        inside = np.clip(self.footprint.clamp(xyz), self.bounds[0], self.bounds[1])
+        inside = keep_inside(xyz, self.footprint, self.bounds)
+        wall = self.wall_note(inside) if what == "source" else ""
         if what is not None and not np.array_equal(inside, xyz):
             self.events.clamped.emit(
                 f"{what} kept inside the {self.region}: ({', '.join(f'{v:.2f}' for v in xyz)}) -> "
-                f"({', '.join(f'{v:.2f}' for v in inside)})")
+                f"({', '.join(f'{v:.2f}' for v in inside)})" + (f"; {wall}" if wall else ""))
+        elif wall:
+            self.events.wall.emit(wall)
         return inside
+
+    def wall_note(self, xyz) -> str:
+        """A note when ``xyz`` lies in a wall of the room (within :data:`WALL_NOTE`), else ''."""
+        d = self.footprint.wall_distance(np.asarray(xyz)[:2])
+        if d >= WALL_NOTE:
+            return ""
+        return (f"the source is in a wall ({d:.2f} m from it): the model has heard no source there; "
+                f"move it at least {WALL_NOTE:.2f} m into the room")
 
     @staticmethod
     def _wrap(yaw: float) -> float:

@@ -32,6 +32,7 @@ from .audio_path import AudioPath
 from .canvas import SceneCanvas
 from .control_panel import ControlPanel
 from .drag import DragController
+from .export_actions import ExportActions
 from .help import key as help_key
 from .loading import SceneLoader
 from .menus import MenuCommands, build_menus, help_dialog
@@ -59,7 +60,7 @@ class MainWindow(QtWidgets.QMainWindow):
     def __init__(self, clip_path: str | Path | None = None, start_audio: bool = True):
         super().__init__()
         self.setWindowTitle("AV-GS explorer")
-        self.resize(1280, 800)
+        self.resize(1280, 680)  # fits a 1366 x 768 screen with a task bar (minimum: MIN_SIZE)
         self.renderer: TrainedScene | None = None
         self.scene_path: Path | None = None
         self.state: ViewerState | None = None
@@ -75,6 +76,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.loader.load_failed.connect(self._on_load_failed)
 
         self.plotter = SceneCanvas(self)  # no render timer; renders coalesced into repaints
+        self.plotter.setMinimumSize(320, 240)  # the window's minimum stays under 700 px tall (a 1366 x 768 screen)
         self.mouse = ViewMouse(self.plotter)  # handle drags, and the X pointer during one
         self.plotter.installEventFilter(self)
         self.plotter.iren.add_observer("StartInteractionEvent", lambda *_: self._camera_moving(True))
@@ -88,10 +90,17 @@ class MainWindow(QtWidgets.QMainWindow):
         self.view_split.addWidget(self.response)
         self.view_split.setStretchFactor(0, 1)
         self.view_split.setCollapsible(0, False)
-        self.view_split.setSizes([800 - RESPONSE_HEIGHT, RESPONSE_HEIGHT])
+        self.view_split.setSizes([680 - RESPONSE_HEIGHT, RESPONSE_HEIGHT])
+        self.panel_scroll = QtWidgets.QScrollArea()  # the side panel scrolls on a short screen
+        self.panel_scroll.setWidget(self.panel)
+        self.panel_scroll.setWidgetResizable(True)
+        self.panel_scroll.setFrameShape(QtWidgets.QFrame.Shape.NoFrame)
+        self.panel_scroll.setHorizontalScrollBarPolicy(QtCore.Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        self.panel_scroll.setMinimumWidth(self.panel.minimumSizeHint().width()
+                                          + self.panel_scroll.verticalScrollBar().sizeHint().width())
         splitter = QtWidgets.QSplitter()
         splitter.addWidget(self.view_split)
-        splitter.addWidget(self.panel)
+        splitter.addWidget(self.panel_scroll)
         splitter.setStretchFactor(0, 1)
         splitter.setSizes([1000, 280])
         self.setCentralWidget(splitter)
@@ -115,22 +124,26 @@ class MainWindow(QtWidgets.QMainWindow):
         # engine, output, the scene's LiveAudio, meters, and the pose heard shown in the widgets
         self.audio_path = AudioPath(self, self.plotter, self.panel, self.response, self.audio_status, start_audio)
         self.response.play.connect(self.audio_path.play_response)
+        self.exports = ExportActions(self)  # File > Export impulse response, grid, fly-through; Record path
         menus = build_menus(self, MenuCommands(  # keys from help.KEYS (the Help dialog lists the same table)
             choose_scene=self.choose_scene, choose_clip=self.choose_clip, choose_screenshot=self.choose_screenshot,
             choose_audio_export=self.choose_audio_export, quit=self.close, camera_preset=self.camera_preset,
             toggle_playing=lambda: self.state and self.state.toggle_playing(),
             turn=lambda degrees: self.state and self.state.turn(degrees),
             play_response=self.audio_path.play_response, show_response=self.response.setVisible,
-            show_help=self.show_help))
+            show_help=self.show_help, choose_impulse_export=self.exports.choose_impulse_export,
+            choose_grid_export=self.exports.choose_grid_export, record_path=self.exports.record_path,
+            choose_path_save=self.exports.choose_path_save, choose_flythrough=self.exports.choose_flythrough))
         self.key_actions = menus.key_actions
         self.export_shot_action, self.export_audio_action = menus.export_shot_action, menus.export_audio_action
         self.response_action = menus.response_action
+        self.record_path_action, self.export_actions = menus.record_path_action, menus.export_actions
         # A window holding an OpenGL widget (the 3D view) is composed by OpenGL: a repaint of any
         # other widget in it (a meter, a level, a pose field, the response plot) redraws and swaps
         # the whole window, which with software GL costs ~20 ms of CPU each time (the meters alone:
         # 5 % of a core while sound plays). In native windows of their own these widgets repaint
         # by plain raster copies of their own area; the 3D view's composition is untouched.
-        for widget in (self.panel, self.response, self.statusBar()):
+        for widget in (self.panel_scroll, self.response, self.statusBar()):
             widget.setAttribute(QtCore.Qt.WidgetAttribute.WA_DontCreateNativeAncestors)
             widget.setAttribute(QtCore.Qt.WidgetAttribute.WA_NativeWindow)
 
@@ -199,21 +212,22 @@ class MainWindow(QtWidgets.QMainWindow):
             self._clip_path = Path(path)
             return
         try:
-            clip = audio.load_clip(path, self.renderer.sample_rate)
+            clip = self.audio_path.read_clip(path, self.renderer.sample_rate)  # what it changed: status bar
         except (ValueError, FileNotFoundError) as exc:
             self.show_error("Cannot open clip", str(exc))
             return
         self._clip_path = Path(path)
-        self.live.set_clip(clip)
+        self.audio_path.set_clip(clip)
         self.statusBar().showMessage(f"Looping {path} ({len(clip) / self.renderer.sample_rate:.1f} s)", 5000)
 
     def _load_clip(self, sample_rate: int) -> np.ndarray:
         if self._clip_path is not None:
             try:
-                return audio.load_clip(self._clip_path, sample_rate)
+                return self.audio_path.read_clip(self._clip_path, sample_rate)
             except (ValueError, FileNotFoundError) as exc:
                 self.show_error("Cannot open clip", str(exc))
                 self._clip_path = None
+        self.audio_path.show_clip_notes([])
         return export.default_clip(sample_rate)
 
     def choose_screenshot(self) -> None:
@@ -247,12 +261,12 @@ class MainWindow(QtWidgets.QMainWindow):
             self.export_audio(path)
 
     def export_audio(self, path: str | Path) -> Path | None:
-        """Write the looped clip as heard now (the pose's filter, or its loop rendered in full once settled) as a WAV."""
+        """Write the whole clip as heard now (the pose's filter, or the renderer's synthesis once settled) as a WAV."""
         if self.live is None or self.live.heard is None:
             self.show_error("Cannot export audio", "No binaural render yet: wait for the scene to load.")
             return None
         try:
-            out = export.write_wav(path, self.live.heard_clip(), self.renderer.sample_rate,
+            out = export.write_wav(path, self.audio_path.export_audio(), self.renderer.sample_rate,
                                    inputs=(self.scene_path, self._clip_path))
         except (ValueError, OSError) as exc:
             self.show_error("Cannot export audio", str(exc))
@@ -308,6 +322,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.audio_path.use_rate(renderer.sample_rate)
         state.events.clamped.connect(self._show_position_notice)
         state.events.refused.connect(self._show_position_notice)
+        state.events.wall.connect(self._show_position_notice)  # a source put in a wall
         state.events.interacting.connect(self.audio_path.interaction_changed)
         self.response.show_response(None, renderer.sample_rate)
         self.audio_path.bind(state)

@@ -23,23 +23,27 @@ def renderer():
     return SceneRenderer.load(DEMO)
 
 
-def cell_pixels(img: np.ndarray, projector, pmap, floor_z: float, step: int = 3):
-    """[(value flat index, rgb)] of the screenshot at the projected centres of map cells."""
+def cell_pixels(img: np.ndarray, projector, pmap, floor_z: float, step: int = 3, overlays=()):
+    """[(value flat index, rgb)] of the screenshot at the projected centres of map cells that no
+    overlay (``overlays``: pixel boxes x0, y0, x1, y1 from the bottom, as the overlays' layout's) covers."""
     out = []
     h = img.shape[0]
     positions = pmap.grid.positions()
     for flat in range(0, len(positions), step):
         x, y = projector.to_display((positions[flat, 0], positions[flat, 1], floor_z))
         col, row = int(round(x)), int(round(h - 1 - y))
+        if any(b[0] - 2 <= x <= b[2] + 2 and b[1] - 2 <= y <= b[3] + 2 for b in overlays):
+            continue
         if 0 <= row < h and 0 <= col < img.shape[1]:
             out.append((flat, img[row, col, :3].astype(int)))
     return out
 
 
-def assert_floor_coloured(before: np.ndarray, after: np.ndarray, projector, pmap, floor_z: float) -> None:
-    """The floor's cells changed from the dark background to colours ordered like the level."""
-    samples = cell_pixels(after, projector, pmap, floor_z)
-    old = dict(cell_pixels(before, projector, pmap, floor_z))
+def assert_floor_coloured(before: np.ndarray, after: np.ndarray, projector, pmap, floor_z: float,
+                          overlays=()) -> None:
+    """The floor's cells (those no overlay covers) changed from the dark background to colours ordered like the level."""
+    samples = cell_pixels(after, projector, pmap, floor_z, overlays=overlays)
+    old = dict(cell_pixels(before, projector, pmap, floor_z, overlays=overlays))
     assert len(samples) > 30
     changed = [flat for flat, rgb in samples if np.abs(rgb - old[flat]).sum() > 60]
     assert len(changed) > 0.5 * len(samples)  # the quietest cells are near the map's dark end (behind walls)
@@ -143,6 +147,7 @@ def test_toggling_the_map_in_the_window_colours_the_floor(qtbot, tmp_path):
 
     w = MainWindow(start_audio=False)
     qtbot.addWidget(w)
+    w.resize(1280, 800)  # a floor large enough on screen to sample its cells' colours
     w.show()
     with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
         w.open_scene(DEMO)
@@ -160,7 +165,8 @@ def test_toggling_the_map_in_the_window_colours_the_floor(qtbot, tmp_path):
         QtWidgets.QApplication.processEvents()
         assert controls.note.text().startswith("16 x 16 cells")
         after = np.asarray(Image.open(w.export_screenshot(tmp_path / "level.png")))
-        assert_floor_coloured(before, after, w.view.projector(), controls.view.latest, floor_height(w.renderer))
+        assert_floor_coloured(before, after, w.view.projector(), controls.view.latest, floor_height(w.renderer),
+                              overlays=list(w.view.board.last.pixels.values()))
         assert bar_title("level") in w.plotter.scalar_bars
 
         seq = controls.view.worker.newest

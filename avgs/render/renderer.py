@@ -14,9 +14,9 @@ with one phase that fast Griffin-Lim retrieves for their mid, for any length, an
 convolution alone (what the explorer plays), ``phase="filter"`` the filter output's phase,
 ``phase="source"`` the paper's synthesis (:mod:`avgs.acoustics.synthesis`).
 
-Bounded sound: the listener and the source are kept inside the scene's box
-(:attr:`SceneRenderer.bounds`, which holds its audio points, G, the training poses and the
-source), with a :class:`PositionClamped` warning naming the position asked for and the one
+Bounded sound: the listener and the source are kept inside the room (its outline's floor
+plan and height, within the scene's box :attr:`SceneRenderer.bounds`, which holds its audio
+points, G, the training poses and the source; the one clamp the explorer uses too), with a :class:`PositionClamped` warning naming the position asked for and the one
 used; the ear filter of a pose never gains more than :data:`HEADROOM_DB` over the input in
 any frequency bin (masks scaled down otherwise, with a :class:`HeadroomLimited` warning),
 and a render's peak never exceeds the input's peak by more than that either. Non-finite
@@ -261,12 +261,25 @@ class SceneRenderer:
 
     # -- poses ------------------------------------------------------------------------
 
+    @property
+    def footprint(self):
+        """Where positions may be: the room's floor plan and height inside the scene's box
+        (:class:`avgs.data.floor_plan.Footprint`; the box alone without an outline)."""
+        if getattr(self, "_footprint", None) is None:
+            from avgs.data.floor_plan import Footprint
+
+            self._footprint = Footprint.from_outline(self._outline, self._bounds)
+        return self._footprint
+
     def inside(self, position, what: str = "listener") -> np.ndarray:
-        """``position`` (world, 3 numbers) moved onto the scene's box if outside it, with a
-        :class:`PositionClamped` warning naming both positions."""
+        """``position`` (world, 3 numbers) moved into the room (its floor plan and height, inside the
+        scene's box: :func:`avgs.data.floor_plan.keep_inside`, as the explorer does) if outside
+        it, with a :class:`PositionClamped` warning naming both positions."""
+        from avgs.data.floor_plan import keep_inside
+
         p = _position(position, what)
         lo, hi = self._bounds.astype(np.float64)
-        q = np.clip(p, lo, hi)
+        q = keep_inside(p, self.footprint, self._bounds)
         if not np.array_equal(p, q):
             warnings.warn(
                 f"{what} ({', '.join(f'{v:.6g}' for v in p)}) is outside the scene "
