@@ -49,7 +49,8 @@ def scene_json(w: WrittenScene) -> dict:
     }
 
 
-INTRINSICS = {"camera_model": "OPENCV", "fl_x": 5.0, "fl_y": 5.0, "cx": 3.0, "cy": 2.0, "w": 6, "h": 4, "frames": []}
+F_60 = 2.0 / math.tan(math.radians(30.0))  # the focal length (pixels) of the writer's 60 degree vertical fov, 4 pixels high
+INTRINSICS = {"camera_model": "OPENCV", "fl_x": F_60, "fl_y": F_60, "cx": 3.0, "cy": 2.0, "w": 6, "h": 4, "frames": []}
 
 
 @pytest.fixture(scope="module")

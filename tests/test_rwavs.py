@@ -167,8 +167,9 @@ def test_the_louder_ear_is_the_one_facing_the_source(tmp_path):
 def test_scene_json_frame_is_used_and_unscaled_poses_are_normalised(tmp_path):
     w0 = write_scene(tmp_path / "a", "office_9", scaled=False)
     meta = {"environment": "office", "to_normalised": {"center": [3.0, 2.0, 1.5], "scale": 1 / 3}}
-    # Unscaled poses only: without scene.json the frame is the identity ...
-    plain = RWAVSScene(w0.scene_dir)
+    # Unscaled poses only: without scene.json the frame is the identity (with a warning) ...
+    with pytest.warns(UserWarning, match="used unnormalised"):
+        plain = RWAVSScene(w0.scene_dir)
     assert plain.frame.scale == 1.0 and np.all(plain.frame.center == 0)
     np.testing.assert_allclose(plain.train[0].listener, w0.train[0].position)
     # ... with it, poses come out normalised by its map.

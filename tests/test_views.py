@@ -15,7 +15,8 @@ from avgs.data.views import DEFAULT_FOV_DEG, load_views
 
 
 def write_views(root, n=3, size=(20, 16), fov=50.0, intrinsics=None, scaled=True, split="train"):
-    """A scene folder with ``n`` frames of constant colour k / n (red) and poses at x = k."""
+    """A scene folder with ``n`` frames of constant colour k / n (red) and poses at x = k / 4
+    (normalised, inside [-1, 1]^3)."""
     W, H = size
     (root / "frames").mkdir(parents=True, exist_ok=True)
     path = []
@@ -24,7 +25,7 @@ def write_views(root, n=3, size=(20, 16), fov=50.0, intrinsics=None, scaled=True
         img[..., 0] = round(255 * k / n)
         Image.fromarray(img).save(root / "frames" / f"{k:05d}.png")
         c2w = np.eye(4)
-        c2w[0, 3] = k
+        c2w[0, 3] = k / 4
         entry = {"camera_to_world": c2w.reshape(-1).tolist(), "file_path": f"frames/{k:05d}.png"}
         if fov is not None:
             entry["fov"], entry["aspect"] = fov, W / H
@@ -40,11 +41,11 @@ def test_poses_images_and_fov_intrinsics(tmp_path):
     views = load_views(write_views(tmp_path), "train")
     assert len(views) == 3 and views.images.shape == (3, 16, 20, 3) and views.images.dtype == torch.float32
     assert torch.allclose(views.images[1, 0, 0], torch.tensor([2 / 3, 0.0, 0.0]), atol=1 / 255)
-    assert views.c2w.shape == (3, 4, 4) and views.camera_centers()[:, 0].tolist() == [1.0, 2.0, 3.0]
+    assert views.c2w.shape == (3, 4, 4) and views.camera_centers()[:, 0].tolist() == [0.25, 0.5, 0.75]
     f = 0.5 * 16 / math.tan(math.radians(50.0) / 2)  # vertical field of view, square pixels
     assert torch.allclose(views.K[0], torch.tensor([[f, 0, 10.0], [0, f, 8.0], [0, 0, 1]]), atol=1e-4)
     assert views.frame_numbers == [1, 2, 3] and views.paths[0].name == "00001.png"
-    assert views.scene_extent() == pytest.approx(1.1)
+    assert views.scene_extent() == pytest.approx(1.1 * 0.25)
 
 
 def test_transforms_json_intrinsics_win_and_follow_the_image_size(tmp_path):
@@ -74,7 +75,7 @@ def test_downscale_averages_pixels_and_scales_k(tmp_path):
 
 def test_unscaled_poses_go_through_scene_json(tmp_path):
     write_views(tmp_path, scaled=False)
-    (tmp_path / "scene.json").write_text(json.dumps({"to_normalised": {"center": [2.0, 0.0, 0.0], "scale": 0.5}}))
+    (tmp_path / "scene.json").write_text(json.dumps({"to_normalised": {"center": [0.5, 0.0, 0.0], "scale": 2.0}}))
     views = load_views(tmp_path, "train")
     assert views.camera_centers()[:, 0].tolist() == [-0.5, 0.0, 0.5]
 

@@ -21,7 +21,11 @@ camera-path entry without a pose.
 
 Everything read is validated, and an invalid scene is refused with a ValueError (or a
 FileNotFoundError for a missing file) whose message names the file and the field, never
-loaded silently nor left to crash deeper down: JSON is read as strict UTF-8, at most
+loaded silently nor left to crash deeper down. The poses are read and checked against each
+other by :mod:`avgs.data.pose_files` (shared with the view loader), the files' other
+contradictions by :mod:`avgs.data.consistency` and :mod:`avgs.data.recordings` (silent
+WAVs refused; a source and binaural track out of sync, or named key frames missing while
+others exist, warned). JSON is read as strict UTF-8, at most
 :data:`MAX_JSON_BYTES` and :data:`MAX_JSON_DEPTH` levels, with no NaN / Infinity and no key
 twice in one object; numbers are JSON numbers (not booleans or strings), finite, and
 coordinates within :data:`MAX_COORDINATE`; every pose is a rigid transform
@@ -39,11 +43,9 @@ regular file is refused by name.
 from __future__ import annotations
 
 import math
-import posixpath
-import re
 import warnings
 from dataclasses import dataclass
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 import numpy as np
 import soundfile as sf
@@ -51,33 +53,35 @@ import torch
 
 from avgs import dsp
 from avgs.config import STFT, STFTConfig
-from avgs.data.files import (
-    describe_json,
-    file_present,
-    finite_number,
-    is_regular_file,
-    json_matrix4,
-    json_vector,
-    read_json,
-    require_file,
+from avgs.data.consistency import warn_missing_key_frames
+from avgs.data.files import describe_json, finite_number, is_regular_file, json_vector, read_json, require_file
+from avgs.data.frame import SceneFrame, signed_direction, yaw_from_c2w
+from avgs.data.pose_files import (  # re-exported: the readers of other layouts take them from here
+    FIT_TOLERANCE,
+    MAX_COORDINATE,
+    MAX_FRAME_NUMBER,
+    MAX_SCALE,
+    METADATA_FILE,
+    MIN_SCALE,
+    POSE_TOLERANCE,
+    SPLITS,
+    PoseEntry,
+    check_coordinates,
+    frame_number_of,
+    is_scene_dir,
+    pose_tolerance,
+    read_camera_path,
+    read_scene_metadata,
+    read_scene_poses,
+    scene_frame_from_json,
+    transforms_path,
 )
-from avgs.data.frame import (
-    RIGID_TOLERANCE,
-    SceneFrame,
-    frame_from_json,
-    rigid_transform_problem,
-    signed_direction,
-    similarity_fit_residual,
-    yaw_from_c2w,
-)
+from avgs.data.recordings import check_not_silent, warn_if_out_of_sync
+
 
 BINAURAL_FILE = "binaural_syn_re.wav"
 SOURCE_FILE = "source_syn_re.wav"
 POSITION_FILE = "position.json"
-METADATA_FILE = "scene.json"
-SPLITS = ("train", "val")
-FIT_TOLERANCE = 1e-3
-"RMS residual (normalised units) above which the fitted world <-> normalised map is reported as inexact."
 
 # -- limits of what a valid scene holds (see the module docstring) -------------------------
 MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 8_000, 192_000
@@ -88,32 +92,9 @@ MAX_AUDIO_SECONDS = 3600.0
 MAX_SAMPLE_MAGNITUDE = 1e3
 """Largest |sample| accepted: audio is read scaled to full scale = 1; beyond this it is
 garbage, and spectrogram magnitudes of it could overflow float32."""
-MAX_COORDINATE = 1e6
-"""Largest |coordinate| of a pose or source, read and normalised (1000 km in metres; the
-model computes in float32)."""
-MIN_SCALE, MAX_SCALE = 1e-6, 1e6
-"""Range of a world -> normalised ``scale`` accepted (a scene of half-extent 1 um .. 1000 km
-mapped into [-1, 1]); with :data:`MAX_COORDINATE` it keeps every mapped coordinate finite."""
-MAX_FRAME_NUMBER = 10**6
-"Largest frame number (= time in seconds) a file_path may carry."
-POSE_TOLERANCE = 1e-3
-"""How far (normalised units, times max(1, the largest |normalised coordinate|)) two files'
-positions of one frame may disagree: float rounding is ~1e-7 and 6-decimal copies ~1e-6."""
 YAW_TOLERANCE_DEG = 0.1
 "How far (degrees) scene.json's ``yaw_deg`` of a pose may be from the transforms file's."
 
-
-def transforms_path(scene_dir: Path, split: str, scaled: bool) -> Path:
-    """``transforms_{split}.json`` or ``transforms_scale_{split}.json`` in ``scene_dir``."""
-    return Path(scene_dir) / (f"transforms_scale_{split}.json" if scaled else f"transforms_{split}.json")
-
-
-def is_scene_dir(path: Path) -> bool:
-    """True for a folder holding at least one RWAVS transforms file."""
-    path = Path(path)
-    return path.is_dir() and any(
-        transforms_path(path, split, scaled).is_file() for split in SPLITS for scaled in (True, False)
-    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -129,100 +110,6 @@ class AudioClip:
     binaural: np.ndarray  # [2, T] float32, channel 0 = left ear
 
 
-@dataclass(frozen=True)
-class _PoseEntry:
-    frame_number: int
-    file_path: str
-    c2w: np.ndarray  # [4, 4] in the frame of the file it was read from
-    field: str = ""  # where in its file, e.g. "camera_path[3].camera_to_world"
-
-
-# -- validated reading: files, JSON, numbers -------------------------------------------------
-
-
-def check_coordinates(points, where: str) -> None:
-    """ValueError unless every coordinate in ``points`` is finite and within :data:`MAX_COORDINATE`."""
-    p = np.asarray(points, dtype=np.float64)
-    if not np.all(np.isfinite(p)) or (p.size and float(np.max(np.abs(p))) > MAX_COORDINATE):
-        worst = float(np.max(np.abs(np.nan_to_num(p, nan=np.inf)))) if p.size else 0.0
-        raise ValueError(f"{where}: coordinate of magnitude {worst:.3g}, beyond the {MAX_COORDINATE:g} a scene may span")
-
-
-def scene_frame_from_json(value) -> SceneFrame:
-    """:func:`avgs.data.frame.frame_from_json` with the center within :data:`MAX_COORDINATE`
-    and the scale within :data:`MIN_SCALE` .. :data:`MAX_SCALE` (ValueError naming the field)."""
-    frame = frame_from_json(value)
-    if float(np.max(np.abs(frame.center))) > MAX_COORDINATE:
-        raise ValueError(f"'center' {[float(v) for v in frame.center]} is beyond the {MAX_COORDINATE:g} a scene may span")
-    if not MIN_SCALE <= frame.scale <= MAX_SCALE:
-        raise ValueError(f"'scale' {frame.scale:g} is outside {MIN_SCALE:g}..{MAX_SCALE:g}")
-    return frame
-
-
-_FRAME_STEM = re.compile(r"[0-9]{1,12}")
-_DRIVE = re.compile(r"[A-Za-z]:")
-
-
-def frame_number_of(file_path, where: str) -> int:
-    """The frame number of a ``file_path`` like ``frames/00042.png`` (42); ValueError naming
-    ``where`` when it is no string, no numbered frame, or leaves the scene folder."""
-    if not isinstance(file_path, str):
-        raise ValueError(f"{where} file_path must be a string like 'frames/00042.png', got {describe_json(file_path)}")
-    shown = file_path if len(file_path) <= 80 else file_path[:80] + "..."
-    name = file_path.replace("\\", "/")
-    stem = PurePosixPath(name).stem if "\x00" not in name else ""
-    if not _FRAME_STEM.fullmatch(stem) or int(stem) > MAX_FRAME_NUMBER:
-        raise ValueError(f"{where} file_path {shown!r} is not a numbered frame like '00042.png'")
-    norm = posixpath.normpath(name)
-    if name.startswith("/") or _DRIVE.match(name) or norm == ".." or norm.startswith("../"):
-        raise ValueError(
-            f"{where} file_path {shown!r} leaves the scene folder; paths must stay inside it (relative, no '..' out of it)"
-        )
-    return int(stem)
-
-
-def read_camera_path(path: Path) -> list[_PoseEntry]:
-    """Posed entries of one transforms file, in file order (entries without a pose are skipped).
-
-    Reads nerfstudio's camera-path format (``{"camera_path": [{"camera_to_world": [16],
-    "file_path"}]}``, RWAVS's) and, as some RWAVS copies store the unscaled poses that
-    way, its transforms format (``{"frames": [{"transform_matrix": [[4] x 4], "file_path"}]}``).
-    Validated: each entry's ``file_path`` a numbered frame inside the scene folder, listed
-    once; each pose 16 finite numbers forming a rigid transform, coordinates within
-    :data:`MAX_COORDINATE`.
-    """
-    path = Path(path)
-    meta = read_json(path, 'a camera path {"camera_path": [{"camera_to_world", "file_path"}, ...]}')
-    if isinstance(meta, dict) and isinstance(meta.get("camera_path"), list):
-        key, pose_key = "camera_path", "camera_to_world"
-    elif isinstance(meta, dict) and isinstance(meta.get("frames"), list):
-        key, pose_key = "frames", "transform_matrix"
-    else:
-        raise ValueError(f"{path}: expected a 'camera_path' (or nerfstudio 'frames') list of poses")
-    out: list[_PoseEntry] = []
-    seen: dict[int, int] = {}
-    for i, entry in enumerate(meta[key]):
-        if not isinstance(entry, dict) or "file_path" not in entry:
-            raise ValueError(f"{path}: {key}[{i}] has no 'file_path'")
-        frame_number = frame_number_of(entry["file_path"], f"{path}: {key}[{i}]")
-        file_path = entry["file_path"]
-        if frame_number in seen:
-            raise ValueError(
-                f"{path}: {key}[{i}].file_path {file_path[:80]!r} is frame {frame_number} again "
-                f"(already {key}[{seen[frame_number]}]); a split lists each frame once"
-            )
-        seen[frame_number] = i
-        pose = entry.get(pose_key)
-        if pose is None:
-            continue  # a frame without a pose: skipped, as in RWAVS
-        field = f"{key}[{i}].{pose_key}"
-        c2w = json_matrix4(pose, f"{path}: {field}")
-        problem = rigid_transform_problem(c2w, RIGID_TOLERANCE)
-        if problem is not None:
-            raise ValueError(f"{path}: {field} is not a rigid transform ({problem})")
-        check_coordinates(c2w[:3, 3], f"{path}: {field}")
-        out.append(_PoseEntry(frame_number, file_path, c2w, field))
-    return out
 
 
 def read_wav(path: Path, channels: int, sample_rate: int = STFT.sample_rate) -> np.ndarray:
@@ -282,21 +169,6 @@ def slice_padded(audio: np.ndarray, start: int, stop: int) -> np.ndarray:
     return out
 
 
-def read_scene_metadata(scene_dir: str | Path) -> dict | None:
-    """``scene.json`` of a scene folder as a dict (our generator's), or None (real RWAVS scenes)."""
-    path = Path(scene_dir) / METADATA_FILE
-    what = "the scene description written by avgs synth"
-    if not file_present(path, what):
-        return None
-    meta = read_json(path, what)
-    if not isinstance(meta, dict):
-        raise ValueError(f"{path}: expected a JSON object")
-    if "to_normalised" in meta:
-        try:
-            scene_frame_from_json(meta["to_normalised"])
-        except ValueError as exc:
-            raise ValueError(f"{path}: bad 'to_normalised' ({exc})") from None
-    return meta
 
 
 class RWAVSScene:
@@ -325,20 +197,24 @@ class RWAVSScene:
         self.sample_rate = stft.sample_rate
         self._stft = stft
         self.metadata: dict | None = self._read_metadata()
-        poses = self._read_poses()  # {(split, scaled): [entries]}
-        self._check_splits_disjoint(poses)
-        self.frame = self._choose_frame(poses)
+        poses = read_scene_poses(self.root, self.metadata)
+        self.frame = poses.frame
         self.source = self._read_source()
-        entries = {split: self._split_entries(poses, split) for split in SPLITS}
+        entries = poses.entries
         self._check_metadata_agrees(entries)
+        warn_missing_key_frames([(poses.files[s], e, self._frame_path(e.file_path)) for s in SPLITS for e, _ in entries[s]])
         self.train: list[AudioClip] = []
         self.val: list[AudioClip] = []
         if not audio:
             return
         binaural = read_wav(self.root / BINAURAL_FILE, 2, self.sample_rate)  # [2, L]
-        mono = read_wav(self.root / SOURCE_FILE, 1, self.sample_rate)[0]  # [L]
+        check_not_silent(self.root / BINAURAL_FILE, binaural)
+        mono = read_wav(self.root / SOURCE_FILE, 1, self.sample_rate)  # [1, L]
+        check_not_silent(self.root / SOURCE_FILE, mono)
+        mono = mono[0]  # [L]
         self.train = self._clips(entries["train"], mono, binaural)
         self.val = self._clips(entries["val"], mono, binaural)
+        warn_if_out_of_sync(self.root / BINAURAL_FILE, self.root / SOURCE_FILE, mono, binaural, self.sample_rate)
 
     def __repr__(self) -> str:
         return f"RWAVSScene({self.name!r}: {len(self.train)} train / {len(self.val)} val clips)"
@@ -357,115 +233,6 @@ class RWAVSScene:
 
     def _read_metadata(self) -> dict | None:
         return read_scene_metadata(self.root)
-
-    def _read_poses(self) -> dict[tuple[str, bool], list[_PoseEntry]]:
-        poses = {}
-        for split in SPLITS:
-            for scaled in (True, False):
-                path = transforms_path(self.root, split, scaled)
-                if file_present(path, f"the {split} camera poses"):
-                    poses[(split, scaled)] = read_camera_path(path)
-            if (split, True) not in poses and (split, False) not in poses:
-                raise FileNotFoundError(
-                    f"{transforms_path(self.root, split, True)}: missing; expected it or "
-                    f"{transforms_path(self.root, split, False).name} with the {split} poses"
-                )
-        return poses
-
-    def _check_splits_disjoint(self, poses) -> None:
-        """A frame (a time) belongs to train or to val, never to both."""
-        where: dict[str, dict[int, Path]] = {split: {} for split in SPLITS}
-        for (split, scaled), entries in poses.items():
-            for e in entries:
-                where[split].setdefault(e.frame_number, transforms_path(self.root, split, scaled))
-        both = sorted(set(where["train"]) & set(where["val"]))
-        if both:
-            k = both[0]
-            raise ValueError(
-                f"{where['val'][k]}: frame {k} is also a train frame ({where['train'][k].name})"
-                + (f", as are {len(both) - 1} more" if len(both) > 1 else "")
-                + "; the train and val splits must be disjoint"
-            )
-
-    def _pose_pairs(self, poses) -> list[tuple[_PoseEntry, _PoseEntry, Path, Path]]:
-        """(scaled entry, unscaled entry, scaled file, unscaled file) of every frame posed in both kinds of file."""
-        pairs = []
-        for split in SPLITS:
-            if (split, True) in poses and (split, False) in poses:
-                unscaled = {e.frame_number: e for e in poses[(split, False)]}
-                for e in poses[(split, True)]:
-                    if e.frame_number in unscaled:
-                        pairs.append((e, unscaled[e.frame_number], transforms_path(self.root, split, True), transforms_path(self.root, split, False)))
-        return pairs
-
-    @staticmethod
-    def _tolerance(normalised) -> float:
-        n = np.asarray(normalised, dtype=np.float64)
-        return POSE_TOLERANCE * max(1.0, float(np.max(np.abs(n))) if n.size else 1.0)
-
-    def _check_pairs(self, pairs, frame: SceneFrame, how: str) -> None:
-        """Every scaled pose equals its unscaled pose mapped by ``frame`` (position and rotation)."""
-        if not pairs:
-            return
-        tol = self._tolerance([s.c2w[:3, 3] for s, _, _, _ in pairs])
-        for s, u, s_path, u_path in pairs:
-            expected = frame.pose_to_normalised(u.c2w)
-            off = float(np.linalg.norm(expected[:3, 3] - s.c2w[:3, 3]))
-            turn = float(np.max(np.abs(expected[:3, :3] - s.c2w[:3, :3])))
-            if not (off <= tol and turn <= RIGID_TOLERANCE):
-                raise ValueError(
-                    f"{s_path}: {s.field} (frame {s.frame_number}) disagrees with {u_path.name} {u.field} "
-                    f"through {how}: position off by {off:.3g} normalised units (tolerance {tol:.3g}), "
-                    f"rotation by {turn:.3g} (tolerance {RIGID_TOLERANCE:g})"
-                )
-
-    def _choose_frame(self, poses) -> SceneFrame:
-        pairs = self._pose_pairs(poses)
-        if self.metadata is not None and "to_normalised" in self.metadata:
-            try:
-                frame = scene_frame_from_json(self.metadata["to_normalised"])
-            except ValueError as exc:
-                raise ValueError(f"{self.root / METADATA_FILE}: bad 'to_normalised' ({exc})") from None
-            self._check_pairs(pairs, frame, f"{METADATA_FILE}'s to_normalised")
-            return frame
-        if not pairs:
-            return SceneFrame.identity()
-        world = np.array([u.c2w[:3, 3] for _, u, _, _ in pairs])
-        normalised = np.array([s.c2w[:3, 3] for s, _, _, _ in pairs])
-        try:
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                frame, rms = SceneFrame.fit(world, normalised)
-            if not MIN_SCALE <= frame.scale <= MAX_SCALE:
-                raise ValueError(f"fitted scale {frame.scale:.3g} is outside {MIN_SCALE:g}..{MAX_SCALE:g}")
-            if float(np.max(np.abs(frame.center))) > MAX_COORDINATE:
-                raise ValueError(f"fitted center {[float(v) for v in frame.center]} is beyond {MAX_COORDINATE:g}")
-        except ValueError as exc:
-            raise ValueError(f"{self.root}: cannot relate transforms_*.json to transforms_scale_*.json: {exc}") from None
-        residual = np.linalg.norm(frame.to_normalised(world) - normalised, axis=-1)
-        tol = self._tolerance(normalised)
-        if float(np.max(residual)) <= tol:
-            self._check_pairs(pairs, frame, "the fitted uniform scale + translation")
-        else:
-            # Not a uniformly scaled and shifted copy. A rotated copy (per split: a normalisation
-            # that also turned the scene) loads with a warning, as it always did; anything else is
-            # an inconsistent pair of files.
-            for split in SPLITS:
-                idx = [i for i, (_, _, s_path, _) in enumerate(pairs) if s_path == transforms_path(self.root, split, True)]
-                if idx and similarity_fit_residual(world[idx], normalised[idx]) > self._tolerance(normalised[idx]):
-                    worst = max(idx, key=lambda i: residual[i])
-                    s, u, s_path, u_path = pairs[worst]
-                    raise ValueError(
-                        f"{s_path}: {s.field} (frame {s.frame_number}) disagrees with {u_path.name} {u.field}: "
-                        f"the scaled poses are no uniformly scaled and shifted (or rotated) copy of the unscaled "
-                        f"ones (this pose is {residual[worst]:.3g} normalised units off the best fit, tolerance {tol:.3g})"
-                    )
-        if rms > FIT_TOLERANCE:
-            warnings.warn(
-                f"{self.root}: the scaled poses are not a uniformly scaled and shifted copy of the "
-                f"unscaled ones (RMS residual {rms:.3g}); world coordinates are approximate",
-                stacklevel=3,
-            )
-        return frame
 
     def _read_source(self) -> np.ndarray:
         path = self.root.parent / POSITION_FILE
@@ -488,7 +255,7 @@ class RWAVSScene:
             return
         path = self.root / METADATA_FILE
         has_frame = "to_normalised" in meta
-        tol = self._tolerance(np.concatenate([self.source[None]] + [[c[:3, 3] for _, c in v] for v in entries.values() if v]))
+        tol = pose_tolerance(np.concatenate([self.source[None]] + [[c[:3, 3] for _, c in v] for v in entries.values() if v]))
         position_file = self.root.parent / POSITION_FILE
         if "source" in meta:
             src = meta["source"]
@@ -534,15 +301,6 @@ class RWAVSScene:
                         f"{off:.3g} normalised units (tolerance {tol:.3g}), yaw by {turn:.3g} degrees "
                         f"(tolerance {YAW_TOLERANCE_DEG:g})"
                     )
-
-    def _split_entries(self, poses, split: str) -> list[tuple[_PoseEntry, np.ndarray]]:
-        """(entry, normalised c2w) pairs of one split, from the scaled file when present."""
-        if (split, True) in poses:
-            return [(e, e.c2w) for e in poses[(split, True)]]
-        out = [(e, self.frame.pose_to_normalised(e.c2w)) for e in poses[(split, False)]]
-        for e, c2w in out:
-            check_coordinates(c2w[:3, 3], f"{transforms_path(self.root, split, False)}: {e.field} mapped to the normalised frame")
-        return out
 
     def _frame_path(self, file_path: str) -> Path:
         candidate = self.root / file_path

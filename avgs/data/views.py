@@ -3,12 +3,16 @@ pinhole intrinsics, from a scene folder in the RWAVS layout (docs/design.md, "Da
 
 - Images: ``frames/NNNNN.png`` (the entry's ``file_path``, else ``frames/<its name>``).
 - Poses: ``transforms_scale_{split}.json`` (normalised frame, as the audio model uses);
-  without it, ``transforms_{split}.json`` mapped by scene.json's ``to_normalised`` (or
-  taken as is, as :class:`avgs.data.rwavs.RWAVSScene` does). Nerfstudio camera-path
-  entries: ``camera_to_world`` 16 floats row-major, OpenGL camera (looks along -Z, +Y up).
+  without it, ``transforms_{split}.json`` mapped to the normalised frame, exactly as
+  :class:`avgs.data.rwavs.RWAVSScene` reads them (:func:`avgs.data.pose_files.read_scene_poses`:
+  every transforms file present checked against the others, the other split's too).
+  Nerfstudio camera-path entries: ``camera_to_world`` 16 floats row-major, OpenGL camera
+  (looks along -Z, +Y up).
 - Intrinsics, first found: ``transforms.json``'s ``fl_x, fl_y, cx, cy, w, h`` (scaled to
-  the image's real size); the entry's ``fov`` (vertical, degrees; square pixels, centred
-  principal point); else :data:`DEFAULT_FOV_DEG` with a warning.
+  the image's real size; pixels no more than 2:1, the principal point inside the frame, and
+  warned when not square or off the entries' ``fov``: :func:`avgs.data.consistency.check_intrinsics`);
+  the entry's ``fov`` (vertical, degrees; square pixels, centred principal point); else
+  :data:`DEFAULT_FOV_DEG` with a warning.
 
 Validated as :mod:`avgs.data.rwavs` validates (JSON, numbers, rigid poses, frames listed
 once and inside the scene folder); images are refused by name when they are no regular
@@ -28,17 +32,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from avgs.data.consistency import check_intrinsics
 from avgs.data.files import file_present, finite_number, is_regular_file, read_json, require_file
-from avgs.data.frame import SceneFrame
-from avgs.data.rwavs import (
-    METADATA_FILE,
-    SPLITS,
-    check_coordinates,
-    frame_number_of,
-    read_camera_path,
-    scene_frame_from_json,
-    transforms_path,
-)
+from avgs.data.pose_files import SPLITS, frame_number_of, read_scene_metadata, read_scene_poses, transforms_path
 
 INTRINSICS_FILE = "transforms.json"
 DEFAULT_FOV_DEG = 60.0
@@ -203,28 +199,15 @@ def _entry_fovs(path: Path) -> dict[int, float]:
 
 
 def _poses(root: Path, split: str):
-    """(entries, their normalised c2w [V, 4, 4], the file read)."""
-    scaled = transforms_path(root, split, True)
-    if file_present(scaled, f"the {split} camera poses"):
-        entries = read_camera_path(scaled)
-        return entries, [e.c2w for e in entries], scaled
-    plain = transforms_path(root, split, False)
-    if not file_present(plain, f"the {split} camera poses"):
+    """(entries, their normalised c2w [V, 4, 4], the file read): every transforms file of the
+    scene read and checked against the others, as the audio loader does
+    (:func:`avgs.data.pose_files.read_scene_poses`), the other split's too where present."""
+    poses = read_scene_poses(root, read_scene_metadata(root), every_split=False)
+    if split not in poses.entries:
+        scaled, plain = transforms_path(root, split, True), transforms_path(root, split, False)
         raise FileNotFoundError(f"{scaled}: missing; expected it or {plain.name} with the {split} camera poses")
-    frame = SceneFrame.identity()
-    meta_path = root / METADATA_FILE
-    if file_present(meta_path, "the scene description written by avgs synth"):
-        meta = read_json(meta_path, "the scene description written by avgs synth")
-        if isinstance(meta, dict) and "to_normalised" in meta:
-            try:
-                frame = scene_frame_from_json(meta["to_normalised"])
-            except ValueError as exc:
-                raise ValueError(f"{meta_path}: bad 'to_normalised' ({exc})") from None
-    entries = read_camera_path(plain)
-    poses = [frame.pose_to_normalised(e.c2w) for e in entries]
-    for e, c2w in zip(entries, poses):
-        check_coordinates(c2w[:3, 3], f"{plain}: {e.field} mapped to the normalised frame")
-    return entries, poses, plain
+    entries = poses.entries[split]
+    return [e for e, _ in entries], [c2w for _, c2w in entries], poses.files[split]
 
 
 def load_views(scene_root: str | Path, split: str, downscale: int = 1) -> Views:
@@ -287,6 +270,10 @@ def load_views(scene_root: str | Path, split: str, downscale: int = 1) -> Views:
     if not bool(torch.isfinite(K).all()) or bool((K[:, 0, 0] <= 0).any()) or bool((K[:, 1, 1] <= 0).any()):
         named = root / INTRINSICS_FILE if file_k is not None else source
         raise ValueError(f"{named}: the intrinsics give a camera matrix that is not finite (or a focal length <= 0) in float32")
+    if file_k is not None:
+        fov = next(((k, fovs[k]) for k in (e.frame_number for e in entries) if k in fovs), None)
+        stated = None if fov is None else (source, f"frame {fov[0]}'s fov", fov[1])
+        check_intrinsics(root / INTRINSICS_FILE, Ks[0], size[1], size[0], stated)
     return Views(
         images=torch.stack(images),
         c2w=torch.from_numpy(np.stack(poses)).float(),
