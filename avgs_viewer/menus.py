@@ -33,6 +33,11 @@ class MenuCommands:
     play_response: Callable[[], object]
     show_response: Callable[[bool], object]  # the impulse-response panel shown or hidden
     show_help: Callable[[], object]
+    choose_impulse_export: Callable[[], object]  # the pose's binaural impulse response as a WAV
+    choose_grid_export: Callable[[], object]  # a grid of responses as SOFA (a dialog: spacing, yaws, height)
+    record_path: Callable[[bool], object]  # recording the listener's path on or off
+    choose_path_save: Callable[[], object]  # the recorded path as keyframes JSON
+    choose_flythrough: Callable[[], object]  # a fly-through MP4 (a dialog: path, fps, size, picture)
 
 
 @dataclass(frozen=True)
@@ -44,6 +49,8 @@ class Menus:
     export_shot_action: QtGui.QAction
     export_audio_action: QtGui.QAction
     response_action: QtGui.QAction  # checkable: the impulse-response panel shown
+    record_path_action: QtGui.QAction  # checkable: the listener's path being recorded
+    export_actions: dict[str, QtGui.QAction]  # "impulse", "grid", "save_path", "flythrough"
 
 
 def build_menus(window: QtWidgets.QMainWindow, do: MenuCommands) -> Menus:
@@ -79,6 +86,13 @@ def build_menus(window: QtWidgets.QMainWindow, do: MenuCommands) -> Menus:
     file_menu.addSeparator()
     export_shot = action(file_menu, "Export &screenshot...", do.choose_screenshot)
     export_audio = action(file_menu, "Export &audio...", do.choose_audio_export)
+    exports = {"impulse": action(file_menu, "Export &impulse response (WAV)...", do.choose_impulse_export),
+               "grid": action(file_menu, "Export response &grid (SOFA)...", do.choose_grid_export)}
+    file_menu.addSeparator()
+    record = action(file_menu, "&Record path", lambda: do.record_path(record.isChecked()))
+    record.setCheckable(True)
+    exports["save_path"] = action(file_menu, "Save recorded &path...", do.choose_path_save)
+    exports["flythrough"] = action(file_menu, "Export &fly-through video...", do.choose_flythrough)
     file_menu.addSeparator()
     action(file_menu, "&Quit", do.quit, "quit")
     view_menu = menu("&View")
@@ -96,7 +110,7 @@ def build_menus(window: QtWidgets.QMainWindow, do: MenuCommands) -> Menus:
     response.setChecked(True)
     help_menu = menu("&Help")
     action(help_menu, "&Keys and mouse", do.show_help, "help")
-    return Menus(key_actions, export_shot, export_audio, response)
+    return Menus(key_actions, export_shot, export_audio, response, record, exports)
 
 
 def help_dialog(parent: QtWidgets.QWidget) -> QtWidgets.QMessageBox:

@@ -61,7 +61,10 @@ def run(args: argparse.Namespace) -> int:
 
     out = args.ir or args.sofa or args.video
     inputs = [args.checkpoint, args.path, args.clip]
-    check_output(out, inputs=inputs, what="--ir" if args.ir else "--sofa" if args.sofa else "--video")
+    flag, suffix = ("--ir", ".wav") if args.ir else ("--sofa", ".sofa") if args.sofa else ("--video", ".mp4")
+    if not str(out).lower().endswith(suffix):  # before any work
+        raise ValueError(f"{flag} {out}: must be written to a {suffix} file")
+    check_output(out, inputs=inputs, what=flag)
     if args.ir:
         if args.listener is None or args.yaw is None:
             raise ValueError("--ir needs the pose: --listener X Y Z and --yaw DEG")
