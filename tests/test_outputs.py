@@ -167,3 +167,50 @@ def test_warnings_are_one_line_and_threads_are_set(files, tmp_path, capsys, monk
     assert choose_threads(None) == 3 and choose_threads(2) == 2
     monkeypatch.delenv("OMP_NUM_THREADS")
     assert 1 <= choose_threads(None) == free_cores() <= (os.cpu_count() or 1)
+
+
+@pytest.mark.parametrize("name, fmt", [("out.mp3", "MP3"), ("out.flac", "FLAC"), ("out.ogg", "OGG"), ("OUT.WAV", "WAV")])
+def test_render_writes_the_format_its_extension_names(files, tmp_path, capsys, name, fmt):
+    d, ckpt, wav = files
+    out = tmp_path / name
+    code, err = run_cli(render(ckpt, wav, out), capsys)
+    assert code == 0, err
+    info = sf.info(out)
+    assert info.format == fmt and info.channels == 2 and info.samplerate == 22050
+    audio, _ = sf.read(out, dtype="float32")
+    assert np.max(np.abs(audio)) > 1e-3  # sound, not silence
+    if fmt != "WAV":  # formats without float samples: nothing beyond full scale, the level change said
+        assert np.max(np.abs(audio)) <= 1.0 + 1e-3
+        assert err == "" or (err.count("\n") == 1 and "scaled down" in err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
+
+
+@pytest.mark.parametrize("name", ["out.m4a", "out.aac", "out", "out.wav.txt"])
+def test_render_refuses_an_extension_it_cannot_write(files, tmp_path, capsys, name):
+    d, ckpt, wav = files
+    code, err = run_cli(render(ckpt, wav, tmp_path / name), capsys)
+    assert code == 2 and err.count("\n") == 1 and str(tmp_path / name) in err and ".wav, .flac, .ogg, .mp3" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_version_prints_the_package_version():
+    from importlib.metadata import version
+
+    done = subprocess.run([sys.executable, "-m", "avgs.cli", "--version"], capture_output=True, text=True)
+    assert done.returncode == 0 and done.stdout.strip() == f"avgs {version('avgs')}"
+
+
+def test_info_says_the_iteration_of_a_finished_run(files, tmp_path, capsys):
+    """A finished run saved without its training state (the bundled demo) is at its final iteration,
+    not at 0; an untrained checkpoint names no iteration."""
+    from avgs.io.checkpoint import load_checkpoint
+
+    d, ckpt, _ = files
+    assert run_cli(["info", str(ckpt)], capsys)[0] == 0
+    assert "at iteration" not in capsys.readouterr().out
+    finished = load_checkpoint(ckpt)
+    finished["metrics"] = {"iteration": 500, "loss": 0.5}
+    path = save_checkpoint(finished, tmp_path / "finished.ckpt")
+    assert cli_main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "at iteration 500" in out and "at iteration 0" not in out and "final iteration 500" in out
