@@ -20,7 +20,8 @@ held out. scene.json's ``rir`` section, when there is one, must agree with the i
 ``sources_world`` / ``receivers_world`` (through the scene's frame). When the scene is opened
 every listed file must be present: a WAV of 32-bit float samples at the sample rate, 2
 channels, whole STFT hops (:data:`HOP`), at most :data:`MAX_RESPONSE_SECONDS`, and all of one
-length, scene.json's ``rir.length_samples`` when it gives one; its samples are checked
+length, scene.json's ``rir.length_samples`` when it gives one; no response file in ``rir/``
+may be left unlisted. Samples are checked
 (finite, within :data:`avgs.data.rwavs.MAX_SAMPLE_MAGNITUDE`) when they are read.
 
 :meth:`RIRScene.responses` reads a whole split (cached); :meth:`RIRScene.index` gives a
@@ -34,6 +35,8 @@ else the identity.
 
 from __future__ import annotations
 
+import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,6 +74,10 @@ WAV_FORMATS = ("WAV", "WAVEX")
 def max_response_samples(sample_rate: int) -> int:
     """The longest response of whole hops within :data:`MAX_RESPONSE_SECONDS` (33024 at 22050 Hz)."""
     return int(MAX_RESPONSE_SECONDS * sample_rate) // HOP * HOP
+
+
+RESPONSE_NAME = re.compile(r"s\d{3,}_r\d{4,}_y\d{3,}\.wav")
+"A response's file name (:func:`rir_file_name`)."
 
 
 def rir_file_name(source: int, receiver: int, yaw_deg: int) -> str:
@@ -321,9 +328,11 @@ class RIRScene:
         within the cap, all of one length (``expected``: scene.json's, when it gives one); returns it."""
         length, first = expected, None
         top = max_response_samples(self.sample_rate)
+        listed = set()
         for split in SPLITS:
             for s, r, y in self._entries(split):
                 path = self._path(s, r, y)
+                listed.add(path.name)
                 require_file(path, f"the response of source {s} to receiver {r} at yaw {y} (a 2-channel {self.sample_rate} Hz WAV)")
                 try:
                     info = sf.info(str(path))
@@ -342,6 +351,15 @@ class RIRScene:
                 elif info.frames != length:
                     like = first if first is not None else f"{METADATA_FILE}'s rir.length_samples"
                     raise ValueError(f"{path}: {info.frames} samples, expected {length} (as {like}); every response of a scene has the same length")
+        try:
+            names = sorted(e.name for e in os.scandir(self.scene_dir / RIR_DIR) if RESPONSE_NAME.fullmatch(e.name))
+        except OSError as exc:
+            raise ValueError(f"{self.scene_dir / RIR_DIR}: cannot be listed ({exc.strerror or exc})") from None
+        unlisted = [n for n in names if n not in listed]
+        if unlisted:
+            raise ValueError(f"{self.scene_dir / RIR_DIR / unlisted[0]}: a response that {INDEX_FILE} does not list"
+                             + (f" (and {len(unlisted) - 1} more)" if len(unlisted) > 1 else "")
+                             + "; expected one file per listed pair and orientation (an orientation or a pair missing from the index?)")
         return int(length)
 
     def index(self, split: str) -> RIRIndex:
