@@ -109,7 +109,7 @@ class PosePanel(QtWidgets.QGroupBox):
     def _subscriptions(self) -> tuple[tuple[Event[Any], Callable[[Any], None]], ...]:
         ev = self.state.events
         return ((ev.listener, self._show_listener), (ev.source, self._show_source), (ev.yaw, self._show_yaw),
-                (ev.clamped, self._show_notice))
+                (ev.clamped, self._show_notice), (ev.wall, self._show_notice))
 
     # ------------------------------------------------------------------ state -> fields
     @staticmethod

@@ -28,6 +28,8 @@ DIRECT_COLOUR = QtGui.QColor(20, 160, 60)
 "The direct sound's marks: a dashed line at each ear's arrival, and its times and ITD in words."
 MIN_PLOT_HEIGHT = 150
 DECAY_TITLE = "Energy decay (dB)"
+LOADING_TEXT = "No response yet: the scene is loading"
+NO_SCENE_TEXT = "No scene: open a checkpoint with File > Open scene"
 T60_LABEL = "T60"
 "The -60 dB line's label, in the margin right of the decay plot."
 FONT_PT = 8
@@ -59,6 +61,8 @@ class ResponsePlot(QtWidgets.QWidget):
     def __init__(self, parent: QtWidgets.QWidget | None = None):
         super().__init__(parent)
         self.summary: ResponseSummary | None = None
+        self.empty_text = LOADING_TEXT
+        "What the plot says while it has no response (a scene loading, or none to load)."
         self.trace: Trace | None = None
         "What the waveform lanes show now (decimated to their width in pixels)."
         self.paints = 0
@@ -129,7 +133,8 @@ class ResponsePlot(QtWidgets.QWidget):
         text = pal.color(QtGui.QPalette.ColorRole.Text)
         if self.summary is None:
             p.setPen(text)
-            p.drawText(self.rect(), QtCore.Qt.AlignmentFlag.AlignCenter, "No response yet: the scene is loading")
+            p.drawText(self.rect(), QtCore.Qt.AlignmentFlag.AlignCenter | QtCore.Qt.TextFlag.TextWordWrap,
+                       self.empty_text)
             p.end()
             return
         wave, decay = self._areas()
@@ -273,6 +278,13 @@ class ResponsePanel(QtWidgets.QWidget):
             self._refresh()
         return self.plot.summary
 
+    def show_no_scene(self, text: str = NO_SCENE_TEXT) -> None:
+        """Say that there is no scene to show a response of (a checkpoint failed to open), and how to open one."""
+        self._impulse, self._stale = None, False
+        self.play_button.setEnabled(False)
+        self.plot.empty_text = text
+        self.plot.set_summary(None)
+
     def show_response(self, impulse: np.ndarray | None, sample_rate: int, moving: bool = False) -> None:
         """Show ``impulse [2, L]`` (a pose's filter; None: none yet); ``moving``: while a handle moves,
         without the reverberation time. Nothing is computed or drawn for the same array again
@@ -280,6 +292,7 @@ class ResponsePanel(QtWidgets.QWidget):
         if impulse is self._impulse and sample_rate == self._sample_rate and (moving or not self._moving):
             return
         self._impulse, self._sample_rate, self._moving = impulse, int(sample_rate), bool(moving)
+        self.plot.empty_text = LOADING_TEXT  # a scene is here: its response is on its way
         self.play_button.setEnabled(impulse is not None)
         self._stale = True
         if self.isVisible():

@@ -23,7 +23,7 @@ import numpy as np
 
 from .outline import Footprint, keep_inside
 
-WALL_NOTE = 0.05
+WALL_NOTE = 0.1
 "A source nearer a wall than this (world units: metres) is said to be in it."
 
 
@@ -174,7 +174,7 @@ class ViewerState:
         d = self.footprint.wall_distance(np.asarray(xyz)[:2])
         if d >= WALL_NOTE:
             return ""
-        return (f"the source is in a wall ({d:.2f} m from it): the model has heard no source there; "
+        return (f"the source is in or against a wall ({d:.2f} m from its face): the model has heard no source there; "
                 f"move it at least {WALL_NOTE:.2f} m into the room")
 
     @staticmethod

@@ -289,8 +289,12 @@ class MainWindow(QtWidgets.QMainWindow):
     def _on_load_failed(self, path: Path, message: str) -> None:
         self._loading = False
         self.progress.hide()
-        self.statusBar().showMessage(f"Could not open {path}", 5000)
         self.show_error("Cannot open scene", f"Could not open {path}:\n{message}")
+        if self.renderer is None:  # an empty window that says how to go on (the view is usable, not "loading")
+            self.response.show_no_scene()
+            self.statusBar().showMessage(f"Could not open {path}: open a checkpoint with File > Open scene")
+        else:
+            self.statusBar().showMessage(f"Could not open {path}; still showing {self.scene_path}", 5000)
 
     def _on_loaded(self, path: Path, renderer: TrainedScene) -> None:
         self._loading = False

@@ -42,6 +42,8 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import io
+import pickle
+import struct
 import math
 import warnings
 from pathlib import Path
@@ -279,6 +281,8 @@ def _load_error(exc: BaseException) -> str:
         return f"not a pickle of tensors and plain values ({line or 'unreadable pickle'})"
     if isinstance(exc, EOFError) or not text.strip():
         return f"the file is empty or ends too early ({type(exc).__name__})"
+    if isinstance(exc, (IndexError, KeyError, pickle.UnpicklingError, struct.error)):  # "pop from empty list", ...
+        return "its bytes are not a torch.save file (a pickle that breaks off or was never one)"
     line = next((ln.strip() for ln in text.splitlines() if ln.strip()), "")
     line = line.split(". ", 1)[0].rstrip(".")
     if "weights_only" in line or "Weights only" in line:
