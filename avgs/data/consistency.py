@@ -122,7 +122,7 @@ def warn_missing_key_frames(named: list[tuple[Path, object, Path]]) -> None:
         f"{len(exists) - len(missing)} of the {len(exists)} key frames named do ({len(missing)} missing); "
         "expected every named frame in the scene's frames folder",
         UserWarning,
-        stacklevel=4,
+        stacklevel=3,
     )
 
 
