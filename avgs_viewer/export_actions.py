@@ -11,7 +11,7 @@ them (nothing is left written). Errors are shown in the window's error dialog.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 from PySide6 import QtCore, QtWidgets
 
@@ -20,12 +20,10 @@ from avgs.export.flythrough import Cancelled, FlythroughConfig
 from . import export_dialogs
 from .path_recorder import PathRecorder
 
-if TYPE_CHECKING:
-    from .window import MainWindow
-
 
 class ExportActions:
-    def __init__(self, window: MainWindow):
+    def __init__(self, window: Any):
+        """``window``: the :class:`~avgs_viewer.window.MainWindow` (its scene, state, status bar, error dialog)."""
         self.window = window
         self.recorder = PathRecorder()
         self.progress_dialog: QtWidgets.QProgressDialog | None = None
