@@ -301,7 +301,7 @@ class SceneView:
         row = float(np.clip(0.028 * h, 11.0, 26.0))  # pixels per row
         longest = max(len(text) for text, _ in rows)
         size_px = (row * (1.8 + 0.55 * longest), row * len(rows) + 0.6 * row)
-        legend = self.plotter.add_legend(rows, bcolor=[c / 255 for c in BACKGROUND], size=(0.2, 0.2),
+        self._legend_actor = legend = self.plotter.add_legend(rows, bcolor=[c / 255 for c in BACKGROUND], size=(0.2, 0.2),
                                          loc="upper right", name="legend", face="circle")
         self._legend_shown = True
 
