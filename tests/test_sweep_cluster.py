@@ -172,3 +172,47 @@ def test_the_lock_outlives_its_holder_while_a_subprocess_it_started_runs(tmp_pat
         assert child.poll() is not None  # taken only once the child had exited
     assert told == [f"{os.uname().nodename} pid {os.getpid()}"]
     child.wait()
+
+
+def test_a_run_lost_beyond_its_retries_is_failed_with_why_and_keeps_its_checkpoint(cluster, quick_scene, tmp_path,
+                                                                                     monkeypatch):
+    """The driver's side: a run whose node is lost once more than Ray may place it again ends
+    as failed, saying it was lost and how to go on; its status.json says so too (not "running"
+    for ever), its checkpoint is kept, and the next sweep would resume from it."""
+    import threading
+
+    from avgs.sweep import cluster as on_ray
+    from avgs.sweep.spec import SweepSpec, expand
+    from avgs.sweep.state import INTERRUPTED, run_state
+
+    monkeypatch.setattr(on_ray, "LOST_RETRIES", 0)
+    spec = SweepSpec(data=str(quick_scene.parent), out=str(tmp_path / "runs"), seeds=[0], eval_split="none",
+                     settings={"avgs": f"{TINY} --iterations {ITERATIONS} --checkpoint-every {EVERY}"}).validate()
+    (run,) = expand(spec, [quick_scene])
+    killed = []
+
+    def kill_at_first_checkpoint():
+        while not (checkpoint_progress(run.checkpoint) or (0, False))[0]:
+            time.sleep(0.05)
+        node_id = read_status(run.folder)["node"]
+        cluster.remove_node(next(n for n in cluster.worker_nodes if n.node_id == node_id), allow_graceful=False)
+        killed.append(node_id)
+
+    records = []
+    killer = threading.Thread(target=kill_at_first_checkpoint, daemon=True)
+    try:
+        with on_ray.connected(cluster.address):
+            killer.start()
+            on_ray.run_all([run], 1, 0.0, 0, "none", lambda r, record: records.append(record))
+        killer.join(timeout=30)
+    finally:
+        cluster.add_node(num_cpus=1, **LEAN)
+    ((record,),) = [records]
+    assert killed and record["status"] == "failed"
+    reason = record["reason"]  # one line: Ray's first sentence, then what to do
+    assert reason.startswith("lost: NodeDiedError: ") and "node" in reason[21:] and "\n" not in reason
+    assert reason.endswith("; start the sweep again to resume from its checkpoint") and len(reason) < 200, reason
+    status = read_status(run.folder)
+    assert (status["status"], status["reason"], status["node"]) == ("failed", record["reason"], killed[0])
+    state = run_state(run, "none")
+    assert state.training == INTERRUPTED and state.iteration >= EVERY

@@ -114,7 +114,8 @@ def _placed(run: Run, threads: int, retries: int, split: str) -> dict:
 
 def _lost_reason(exc: BaseException) -> str:
     """Why a run's task ended without a record, in one line, and what the next sweep does."""
-    return f"lost: {_first_line(exc)}; start the sweep again to resume from its checkpoint"
+    sentence = _first_line(exc).split(". ")[0].rstrip(".")  # Ray's advice follows the first sentence
+    return f"lost: {sentence}; start the sweep again to resume from its checkpoint"
 
 
 def _first_line(exc: BaseException) -> str:
