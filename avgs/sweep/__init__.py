@@ -4,6 +4,7 @@
   command line) and its expansion into :class:`Run` s, each with a run folder that stays the
   same across restarts: ``OUT/<scene>/<setting>/seed<k>/``.
 - :mod:`avgs.sweep.state`: what a run folder holds (finished, interrupted, new; a fresh score).
+- :mod:`avgs.sweep.lock`: one writer per run folder (held by a run and the subprocesses it starts).
 - :mod:`avgs.sweep.execute`: one run as ``avgs train`` (``--resume`` when interrupted, retried)
   and ``avgs eval`` subprocesses; plain Python, runs on any Ray worker.
 - :mod:`avgs.sweep.cluster`: the only module that imports Ray: places the runs by the CPU
