@@ -7,7 +7,9 @@ The rule for each: an **error** (ValueError naming the file and the value, the l
 error type) where no real recording can look like that; a **warning** (one line) where a
 real one can, so the scene still loads. Each check says which, and why, where it is made.
 Every function takes plain values (paths, arrays, entries with ``frame_number`` and
-``field``), so both loaders call them.
+``field``), so both loaders call them. The pose warnings point at
+:func:`avgs.data.pose_files.read_scene_poses`, which both loaders call: Python's default
+warning filter then shows one of them once per process, not once per loader.
 """
 
 from __future__ import annotations
@@ -74,7 +76,7 @@ def warn_unnormalised(root: Path, unscaled_files: list[Path], positions: np.ndar
         f"so they are used unnormalised (|coordinate| up to {reach:.3g}); expected normalised poses, "
         "like position.json's source",
         UserWarning,
-        stacklevel=4,
+        stacklevel=2,
     )
 
 
@@ -100,7 +102,7 @@ def warn_outside_normalised(files: list[tuple[Path, list, np.ndarray]]) -> None:
         f"[{', '.join(f'{v:.3g}' for v in position)}] ({count} pose(s) beyond {NORMALISED_EXTENT:g}); "
         "expected normalised poses within [-1, 1]^3, the frame transforms_scale_*.json are scaled into",
         UserWarning,
-        stacklevel=4,
+        stacklevel=2,
     )
 
 
