@@ -204,7 +204,8 @@ def _read_poses(root: Path, every_split: bool) -> dict[tuple[str, bool], list[Po
 
 
 def _check_splits_disjoint(root: Path, poses) -> None:
-    """A frame (a time) belongs to train or to val, never to both."""
+    """A frame (a time) belongs to train or to val, never to both. An error: one second of one
+    recording cannot be held out and trained on, and the layout's split is disjoint."""
     where: dict[str, dict[int, Path]] = {split: {} for split in SPLITS}
     for (split, scaled), entries in poses.items():
         for e in entries:
@@ -238,7 +239,8 @@ def pose_tolerance(normalised) -> float:
 
 
 def _check_pairs(pairs, frame: SceneFrame, how: str) -> None:
-    """Every scaled pose equals its unscaled pose mapped by ``frame`` (position and rotation)."""
+    """Every scaled pose equals its unscaled pose mapped by ``frame`` (position and rotation).
+    An error: the layout's scaled file is the same poses, scaled; a real recording has one pose per frame."""
     if not pairs:
         return
     tol = pose_tolerance([s.c2w[:3, 3] for s, _, _, _ in pairs])

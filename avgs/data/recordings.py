@@ -61,6 +61,8 @@ def check_not_silent(path: Path, audio: np.ndarray) -> None:
     """ValueError naming ``path`` when ``audio [C, T]`` (or one channel of it) is all silence."""
     if audio.shape[-1] == 0:
         raise ValueError(f"{path}: holds no samples; expected a recording")
+    # An error: a real recording has a noise floor even in its quietest stretch; a whole track
+    # (or ear) of digital zeros is a file that was never written with sound.
     peaks = np.max(np.abs(audio), axis=-1)  # [C]
     if float(np.max(peaks)) < SILENT_PEAK:
         raise ValueError(
