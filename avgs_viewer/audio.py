@@ -12,7 +12,10 @@ has settled); it plays sample for sample in place of the filter's output, crossf
 over one block, until the next filter or clip, which crossfade back over their block.
 :meth:`StreamEngine.play_once` plays a signal (the pose's impulse response itself) once
 instead of the clip: the clip fades out over one block, the signal plays sample for
-sample, then the clip fades back in where it stopped.
+sample, then the clip fades back in where it stopped. :attr:`StreamEngine.bypass` plays the dry
+clip in both ears instead of the filter's output (A/B audition), crossfaded over one block, at
+its own make-up gain (the clip at ``target_db`` dB RMS); :meth:`StreamEngine.take_peaks` gives
+the meters each ear's sample peak since they last asked (before the output's limit at 1.0).
 
 The engine is pulled by :class:`~avgs_viewer.sound_output.AudioOutput` (the sound card's
 callback, or a simulated clock where there is none: :mod:`avgs_viewer.sound_output`), or
@@ -223,6 +226,17 @@ class StreamEngine:
         self.blocks = 0              # blocks rendered with sound (not paused)
         self.filters_set = 0
         self._last_out: np.ndarray | None = None  # [block, 2] the last block out (None: silence)
+        self.bypass = False
+        "True: the dry clip in both ears (no filter), crossfaded over one block."
+        self._bypass_mix = 0.0  # how much of the block out was the dry clip, at its end (0 .. 1)
+        self._dry_gain = 1.0  # the dry clip at target_db dB RMS
+        self._peaks = np.zeros(2, dtype=np.float32)  # [2] each ear's peak |sample| since take_peaks
+
+    def take_peaks(self) -> tuple[float, float]:
+        """Each ear's largest |sample| out since the last call (before the limit at 1.0: a value
+        >= 1.0 means the output clipped), and start again from zero."""
+        peaks, self._peaks = self._peaks, np.zeros(2, dtype=np.float32)
+        return float(peaks[0]), float(peaks[1])
 
     @property
     def block_levels(self) -> tuple[float, float]:
@@ -278,6 +292,8 @@ class StreamEngine:
             else:
                 self._next_clip = mono
             self._spectrum = spectrum
+            rms = float(np.sqrt(np.mean(np.square(mono, dtype=np.float64))))
+            self._dry_gain = 10.0 ** (self.target_db / 20.0) / rms if rms > 0 else 1.0
             self.makeup_gain = None
             if self._impulse is not None:
                 self.makeup_gain = self._fit_gain(self._impulse)
@@ -445,6 +461,20 @@ class StreamEngine:
             self.loop_tag = None
         self._loop_mix = target
 
+    def _mix_dry(self, y: np.ndarray, clip: np.ndarray, pos: int, makeup: float) -> None:
+        """Crossfade the dry clip from ``pos`` (both ears, at its own gain) into or out of the block
+        ``y [2, block]``, in place. Under the lock."""
+        n = self.block
+        dry = clip[(pos + np.arange(n)) % len(clip)] * np.float32(self._dry_gain / makeup)  # [n]
+        target = 1.0 if self.bypass else 0.0
+        if target == self._bypass_mix:
+            y[:] = dry
+        else:
+            ramp = np.linspace(self._bypass_mix, target, n + 1, dtype=np.float32)[1:]  # [n]
+            y *= 1.0 - ramp
+            y += dry * ramp
+        self._bypass_mix = target
+
     def render_block(self) -> np.ndarray:
         """The next :attr:`block` output samples, [block, 2] float32 (advances the engine)."""
         n = self.block
@@ -454,6 +484,7 @@ class StreamEngine:
             target = float(self.volume) if self.playing and not once else 0.0  # a signal played once: the clip fades out
             if once and (self._gain == 0.0 or self._conv is None or self._clip is None):
                 self._play_once_block(out)  # the clip is silent: the signal plays as it is
+                np.maximum(self._peaks, np.abs(out).max(axis=0), out=self._peaks)
                 self.blocks += 1
                 self._last_out = out
                 return out
@@ -463,15 +494,18 @@ class StreamEngine:
             y, where = self._convolved()  # [2, n]
             if self._loop is not None or self._loop_mix > 0.0:
                 self._mix_loop(y, *where)
+            makeup = self.makeup_gain or 1.0
+            if self.bypass or self._bypass_mix > 0.0:
+                self._mix_dry(y, where[0], where[1], makeup)
             tag, fresh = self._pending_tag, self._pending
             self._pending = False
-            makeup = self.makeup_gain or 1.0
         # Volume, pause and make-up gain (refitted for a new clip) all ramp over the block, never step.
         gain = target * makeup
         if gain == self._gain:
             np.multiply(y.T, np.float32(gain), out=out)
         else:
             out[:] = (y * np.linspace(self._gain, gain, n + 1, dtype=np.float32)[1:]).T  # ramp [n]
+        np.maximum(self._peaks, np.abs(out).max(axis=0), out=self._peaks)
         np.clip(out, -1.0, 1.0, out=out)
         self._gain = gain
         self.blocks += 1

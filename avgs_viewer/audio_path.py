@@ -246,6 +246,7 @@ class AudioPath(QtCore.QObject):
         if shown is None or max(abs(left - shown[0]), abs(right - shown[1])) >= 1.5:
             self.panel.show_meters(left, right)
             self._meters_shown = (left, right)
+        self.panel.show_peaks(*self.engine.take_peaks())  # peak hold and clip light (repaint only on a change)
         if not self.engine.playing and max(left, right) <= SILENCE_DB:
             self.meter_timer.stop()
 

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from PySide6 import QtCore, QtWidgets
 
+from .meters import FLOOR_DB, ClipLight, LevelMeter, peak_db
 from .pose_panel import PosePanel
 from .state import ColourMode, Event, ViewerState
 
@@ -20,7 +21,7 @@ if TYPE_CHECKING:
 
 COLOUR_MODE_NAMES = {ColourMode.VICINITY: "Vicinity sets", ColourMode.ALPHA: "Learned alpha (PCA)",
                      ColourMode.RGB: "G's colour (RGB)"}
-METER_FLOOR_DB = -60.0
+METER_FLOOR_DB = FLOOR_DB
 HEARD_TEXT = {False: "Hearing: the pose's filter", True: "Hearing: the full render"}
 HEARD_TIP = ("While a pose changes you hear its filter at once; once it holds, the loop rendered in full "
              "at it (what avgs render writes) is crossfaded in.")
@@ -62,20 +63,21 @@ class ControlPanel(QtWidgets.QWidget):
         self.play = QtWidgets.QPushButton("Pause")
         self.volume = QtWidgets.QSlider(QtCore.Qt.Orientation.Horizontal)
         self.volume.setRange(0, 100)
-        self.meter_left, self.meter_right = QtWidgets.QProgressBar(), QtWidgets.QProgressBar()
+        self.meter_left, self.meter_right = LevelMeter(), LevelMeter()  # RMS bar, dB scale, peak hold
+        self.clip_light = ClipLight()
         meters = QtWidgets.QWidget()
         meter_grid = QtWidgets.QGridLayout(meters)
         meter_grid.setContentsMargins(0, 0, 0, 0)
         for row, (meter, name, ear) in enumerate(((self.meter_left, "L", "left"), (self.meter_right, "R", "right"))):
             meter.setRange(int(METER_FLOOR_DB * 10), 0)
             meter.setValue(int(METER_FLOOR_DB * 10))  # silent until the first levels arrive
-            meter.setFormat(f"{name} %v")
-            meter.setTextVisible(False)
-            meter.setToolTip(f"{ear} ear, {METER_FLOOR_DB:.0f} to 0 dB")
+            meter.setToolTip(f"{ear} ear: RMS level, {METER_FLOOR_DB:.0f} to 0 dB full scale; "
+                             "the white line: the highest sample peak, held 1.5 s")
             label = QtWidgets.QLabel(f"<b>{name}</b>")
             label.setToolTip(f"{ear} ear")
             meter_grid.addWidget(label, row, 0)
             meter_grid.addWidget(meter, row, 1)
+        meter_grid.addWidget(self.clip_light, 0, 2, 2, 1)
         self.meter_labels = [meter_grid.itemAtPosition(r, 0).widget() for r in range(2)]
         self.levels = QtWidgets.QLabel("L - dB   R - dB   ILD - dB")
         self.heard = QtWidgets.QLabel("")
@@ -175,4 +177,11 @@ class ControlPanel(QtWidgets.QWidget):
     def show_meters(self, left: float, right: float) -> None:
         self.meter_left.setValue(int(10 * max(left, METER_FLOOR_DB)))
         self.meter_right.setValue(int(10 * max(right, METER_FLOOR_DB)))
+
+    def show_peaks(self, left: float, right: float) -> None:
+        """Each ear's sample peak (|x|) since the last call: the held peak lines, and the clip light at full scale."""
+        self.meter_left.show_peak(peak_db(left))
+        self.meter_right.show_peak(peak_db(right))
+        if max(left, right) >= 1.0:
+            self.clip_light.set_lit(True)
 
