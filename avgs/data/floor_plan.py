@@ -197,4 +197,6 @@ def keep_inside(xyz, footprint: Footprint, bounds) -> np.ndarray:
     """``xyz`` [3] (world) moved to the nearest point inside ``footprint`` (the room's floor plan
     and height) and the scene's box ``bounds`` [2, 3]; unchanged when already inside."""
     bounds = np.asarray(bounds, dtype=np.float64)
-    return np.clip(footprint.clamp(np.asarray(xyz, dtype=np.float64)), bounds[0], bounds[1])
+    reach = 1e6 * max(float(np.ptp(bounds, axis=0).max()), 1.0)  # 1e300 first comes this near: no overflow
+    near = np.clip(np.asarray(xyz, dtype=np.float64), bounds[0] - reach, bounds[1] + reach)
+    return np.clip(footprint.clamp(near), bounds[0], bounds[1])
