@@ -152,8 +152,9 @@ def execute(run: Run, threads: int = 1, retries: int = 1, split: str = "val", no
         return _execute(run, threads, retries, split, node, log, lock)
 
 
-def _execute(run: Run, threads: int, retries: int, split: str, node: str, log: Path, lock: int) -> dict:
+def _execute(run: Run, threads: int, retries: int, split: str, node: str, log: Path, lock: int | None) -> dict:
     t0 = time.perf_counter()
+    keep = () if lock is None else (lock,)
     state = run_state(run, split)
     record = {"run": run.name, "scene": run.scene, "setting": run.setting, "seed": run.seed,
               "options": list(run.options), "host": socket.gethostname(), "node": node, "status": RUNNING,
@@ -166,10 +167,10 @@ def _execute(run: Run, threads: int, retries: int, split: str, node: str, log: P
             resume = state.training == INTERRUPTED
             if resume and record["resumed_from"] is None:
                 record["resumed_from"] = state.iteration
-            record["returncode"] = _call(train_argv(run, threads, resume), log, threads, run.workdir, (lock,))
+            record["returncode"] = _call(train_argv(run, threads, resume), log, threads, run.workdir, keep)
             state = run_state(run, split)
         if state.training == FINISHED and split != "none" and not eval_fresh(run, split):
-            code = _call(eval_argv(run, threads, split), log, threads, run.workdir, (lock,))
+            code = _call(eval_argv(run, threads, split), log, threads, run.workdir, keep)
             if code != 0:
                 return _end(run, record, t0, "failed", code, log, "eval")
     except BaseException:

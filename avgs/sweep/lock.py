@@ -41,14 +41,18 @@ def holder(path: Path) -> str:
 
 
 @contextmanager
-def run_lock(folder: Path, wait: float = WAIT_SECONDS, on_wait=None) -> Iterator[int]:
-    """Hold ``folder``'s lock for the block; yields its file descriptor (to pass to subprocesses).
+def run_lock(folder: Path, wait: float = WAIT_SECONDS, on_wait=None) -> Iterator[int | None]:
+    """Hold ``folder``'s lock for the block; yields its file descriptor (to pass to subprocesses),
+    None where there is no ``flock`` (Windows: no lock).
 
     Polls every 0.2 s (an interrupt lands between polls); ``on_wait(holder)`` is called once
     when the lock is taken by someone else; :class:`FolderBusy` after ``wait`` seconds.
     """
-    import fcntl
-
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        yield None
+        return
     path = Path(folder) / LOCK
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
     try:
