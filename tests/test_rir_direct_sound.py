@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from avgs.acoustics.interaural import interaural_delay
-from avgs.acoustics.rir_model import FADE_SAMPLES, DirectSound, place_direct_sound
+from avgs.acoustics.rir_model import FADE_SAMPLES, DirectSound, place_direct_sound, sharpen_direct_sound
 from avgs.config import STFT
 from avgs.evaluation import spatial
 from avgs.render.renderer import SceneRenderer
@@ -32,6 +32,26 @@ def test_the_gate_delays_each_ear_and_keeps_the_early_energy():
     for ear in (0, 1):  # the first window's energy is kept (the gate's share given to the next half window)
         assert np.sum(y[ear, : window[ear]] ** 2) == pytest.approx(float(np.sum(h[0, ear, : window[0]].numpy() ** 2)), rel=0.25)
     assert spatial.onset(y) == pytest.approx(start[0], abs=0.5e-3 * fs)
+
+
+def test_the_direct_sound_becomes_the_first_peak_with_its_energy_and_itd():
+    """Noise after each ear's arrival whose peak is below a later reflection's -20 dB (the onset comes
+    late) becomes an impulse at the arrival: the onset is the arrival, the ITD the one given, the energy kept."""
+    rng = np.random.default_rng(1)
+    fs, L = STFT.sample_rate, 4000
+    start = torch.tensor([[1000.3, 1008.6]])  # [1, 2] samples: the right ear 8.3 samples (376 us) later
+    y = torch.zeros(1, 2, L, dtype=torch.float64)
+    diffuse = torch.from_numpy(rng.choice([-0.005, 0.005], 400))  # quiet; the ears coherent, as the model makes them
+    for ear in (0, 1):
+        s0 = int(math.ceil(float(start[0, ear])))
+        y[0, ear, s0 : s0 + 400] = diffuse
+        y[0, ear, 1600] = 0.1  # a louder reflection 27 ms later
+    assert spatial.onset(y[0].numpy()) > 1500  # before: the onset is the reflection
+    out = sharpen_direct_sound(y, start, fs)[0].numpy()
+    assert spatial.onset(out) == pytest.approx(1000.3, abs=1.0)
+    assert np.sum(out**2) == pytest.approx(float(np.sum(y.numpy() ** 2)), rel=0.02)
+    early = out[:, 990:1100]
+    assert spatial.itd(early, fs) == pytest.approx(-8.3 / fs, abs=20e-6)  # negative: the left ear leads
 
 
 @pytest.fixture(scope="module")
