@@ -61,6 +61,8 @@ from avgs.data.rwavs import (
 FORMAT = "avgs-rir/1"
 RIR_DIR = "rir"
 INDEX_FILE = "index.json"
+METADATA_SECTION = "rir"
+"scene.json's section about the responses (their length, positions in metres, held-out sources)."
 SPLITS = ("train", "val", "heldout")
 ENVIRONMENTS = ("rectangular", "non-rectangular", "multi-room")
 MAX_RESPONSE_SECONDS = 1.5
@@ -282,10 +284,10 @@ class RIRScene:
     def _check_metadata(self) -> int | None:
         """scene.json's ``rir`` section against the index (when there is one); its ``length_samples`` or None."""
         meta = self.metadata
-        if meta is None or "rir" not in meta:
+        if meta is None or METADATA_SECTION not in meta:
             return None
         where = f"{self.scene_dir / METADATA_FILE}: rir"
-        rir = meta["rir"]
+        rir = meta[METADATA_SECTION]
         if not isinstance(rir, dict):
             raise ValueError(f"{where} must be an object, got {describe_json(rir)}")
         length = None
