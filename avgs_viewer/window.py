@@ -31,17 +31,21 @@ from . import audio, export, file_dialogs
 from .audio_path import AudioPath
 from .canvas import SceneCanvas
 from .control_panel import ControlPanel
+from .audition import Audition
 from .drag import DragController
 from .export_actions import ExportActions
 from .help import key as help_key
 from .loading import SceneLoader
-from .menus import MenuCommands, build_menus, help_dialog
+from .head_tracking import DEFAULT_PORT, HeadTracker, Reference, tracked_position, tracked_yaw
+from .menus import MenuCommands, add_action, build_menus, help_dialog
 from .mouse import ViewMouse
+from .navigation import Navigation
 from .propagation_view import MapControls
 from .response_view import ResponsePanel
 from .scene_view import SceneView
 from .state import ViewerState
 from .trained_scene import TrainedScene
+from .undo import PoseHistory
 
 if TYPE_CHECKING:  # imported when a scene first needs them
     from .sound_output import AudioOutput
@@ -138,6 +142,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.export_shot_action, self.export_audio_action = menus.export_shot_action, menus.export_audio_action
         self.response_action = menus.response_action
         self.record_path_action, self.export_actions = menus.record_path_action, menus.export_actions
+        self._add_tools(menus.menus)
         # A window holding an OpenGL widget (the 3D view) is composed by OpenGL: a repaint of any
         # other widget in it (a meter, a level, a pose field, the response plot) redraws and swaps
         # the whole window, which with software GL costs ~20 ms of CPU each time (the meters alone:
@@ -151,6 +156,78 @@ class MainWindow(QtWidgets.QMainWindow):
         self._relayout_timer.setSingleShot(True)
         self._relayout_timer.setInterval(0)
         self._relayout_timer.timeout.connect(self._relayout)
+
+    def _add_tools(self, menus: dict) -> None:
+        """Undo of poses, A/B audition, viewpoints, recent files, drops, point size, FPS, head tracking."""
+        self.history = PoseHistory(self)
+        view_menu = menus["view"]
+        view_menu.addSeparator()
+        add_action(self, view_menu, "&Undo pose change", self.history.stack.undo, "undo", self.key_actions)
+        add_action(self, view_menu, "&Redo pose change", self.history.stack.redo, "redo", self.key_actions)
+        self.audition = Audition(self, self.menuBar(), self.key_actions)
+        self.navigation = Navigation(self, menus, self.key_actions)
+        self.panel.layout().insertWidget(self.panel.layout().count() - 1, self.navigation.point_box)
+        self.panel.pose.left.connect(lambda: self.plotter.setFocus())
+        self.head_tracker = HeadTracker(self)
+        self.head_tracker.ypr.connect(self._tracked_ypr)
+        self.head_tracker.xyz.connect(self._tracked_xyz)
+        self._tracking_reference: Reference | None = None
+        view_menu.addSeparator()
+        self.tracking_action = add_action(self, view_menu, f"&Head tracking (OSC /ypr, /xyz on UDP {DEFAULT_PORT})",
+                                          lambda: self.set_head_tracking(self.tracking_action.isChecked()))
+        self.tracking_action.setCheckable(True)
+        self.osc_port = DEFAULT_PORT
+
+    def set_head_tracking(self, on: bool, port: int | None = None) -> int | None:
+        """Listen for a head tracker's OSC messages (head_tracking: /ypr, /xyz) on UDP ``port``, or stop.
+        The listener's pose now is the tracker's zero. Returns the port, or None when off."""
+        self.head_tracker.stop()
+        self._tracking_reference = None
+        if on:
+            try:
+                self.osc_port = self.head_tracker.start(self.osc_port if port is None else port)
+            except OSError as exc:
+                self.show_error("Cannot start head tracking", str(exc))
+                on = False
+            else:
+                if self.state is not None:
+                    self._tracking_reference = Reference(self.state.yaw, self.state.listener)
+                self.statusBar().showMessage(f"Head tracking: OSC /ypr and /xyz on UDP port {self.osc_port}", 5000)
+        with QtCore.QSignalBlocker(self.tracking_action):
+            self.tracking_action.setChecked(on)
+        self.tracking_action.setText(f"&Head tracking (OSC /ypr, /xyz on UDP {self.osc_port})")
+        return self.osc_port if on else None
+
+    def _reference(self) -> Reference | None:
+        if self._tracking_reference is None and self.state is not None:
+            self._tracking_reference = Reference(self.state.yaw, self.state.listener)
+        return self._tracking_reference
+
+    def _tracked_ypr(self, yaw: float, _pitch: float, _roll: float) -> None:
+        ref = self._reference()
+        if ref is not None and self.head_tracker.running:
+            with self.history.quiet():  # a stream of poses, not undo steps
+                self.state.set_yaw(tracked_yaw(ref, yaw))
+
+    def _tracked_xyz(self, x: float, y: float, z: float) -> None:
+        ref = self._reference()
+        if ref is not None and self.head_tracker.running:
+            with self.history.quiet():
+                self.state.set_listener(tracked_position(ref, (x, y, z)), keep_height=False)
+
+    # ------------------------------------------------------------------ drops
+    def dragEnterEvent(self, event: QtGui.QDragEnterEvent) -> None:  # noqa: N802
+        if self.navigation.accepts(event.mimeData()):
+            event.acceptProposedAction()
+
+    def dragMoveEvent(self, event: QtGui.QDragMoveEvent) -> None:  # noqa: N802
+        if self.navigation.accepts(event.mimeData()):
+            event.acceptProposedAction()
+
+    def dropEvent(self, event: QtGui.QDropEvent) -> None:  # noqa: N802
+        if self.navigation.accepts(event.mimeData()):
+            event.acceptProposedAction()
+            self.navigation.drop(event.mimeData())
 
     # ------------------------------------------------------------------ the audio path's parts
     @property
@@ -182,6 +259,7 @@ class MainWindow(QtWidgets.QMainWindow):
         """One of the view's camera presets: camera_home, camera_top, camera_front, camera_listener."""
         if self.view is not None:
             getattr(self.view, name)()
+            self.navigation.preset_done(name)  # the top view orthographic, the others perspective
             self.plotter.render()
 
     def show_help(self) -> None:
@@ -218,6 +296,7 @@ class MainWindow(QtWidgets.QMainWindow):
             return
         self._clip_path = Path(path)
         self.audio_path.set_clip(clip)
+        self.navigation.opened(path)
         self.statusBar().showMessage(f"Looping {path} ({len(clip) / self.renderer.sample_rate:.1f} s)", 5000)
 
     def _load_clip(self, sample_rate: int) -> np.ndarray:
@@ -305,6 +384,8 @@ class MainWindow(QtWidgets.QMainWindow):
             self.show_error("Cannot show scene", f"Could not show {path}:\n{type(exc).__name__}: {exc}")
             return
         self.scene_path = Path(path)
+        self.navigation.opened(path)
+        self.navigation.scene_changed()  # its viewpoints, the point size
         self.setWindowTitle(f"AV-GS explorer - {Path(path).name}")
         self.statusBar().showMessage(f"Loaded {path}: {len(renderer.points)} audio points", 5000)
         self.scene_loaded.emit(renderer)
@@ -334,6 +415,10 @@ class MainWindow(QtWidgets.QMainWindow):
         # LiveAudio subscribes to the state's pose event; the view's handlers before it only ask
         # for a repaint (SceneCanvas), so a move reaches the audio path before anything is drawn.
         self.audio_path.start(renderer, state, view, clip)
+        self.history.bind(state)
+        self.audition.scene_changed()
+        self.engine.bypass = self.audition.bypass_action.isChecked()
+        self._tracking_reference = None  # the tracker's zero: the new scene's pose
         self.plotter.render()
 
     def _show_position_notice(self, message: str) -> None:
@@ -370,6 +455,7 @@ class MainWindow(QtWidgets.QMainWindow):
     # ------------------------------------------------------------------ closing
     def closeEvent(self, event: QtGui.QCloseEvent) -> None:  # noqa: N802
         self.meter_timer.stop()
+        self.head_tracker.stop()
         self._teardown_scene()
         self.mouse.close()
         self.audio_path.close()

@@ -161,6 +161,8 @@ def test_the_meters_repaint_on_screen_without_recomposing_the_3d_view(qtbot, win
     w = window
     screen = QtGui.QGuiApplication.primaryScreen().geometry()
     meter = w.panel.meter_left
+    w.panel_scroll.ensureWidgetVisible(meter)  # the side panel scrolls on a short window
+    qtbot.wait(100)
 
     def on_screen() -> bool:
         return screen.contains(QtCore.QRect(meter.mapToGlobal(QtCore.QPoint(0, 0)), meter.size()))
