@@ -28,6 +28,17 @@ KEYS: tuple[Key, ...] = (
     Key("camera_top", ("T",), "camera: from above (floor plan, +y up)"),
     Key("camera_front", ("F",), "camera: from the front (the -y side, level)"),
     Key("camera_listener", ("L",), "camera: from the listener, looking where it faces"),
+    Key("bypass", ("D",), "audition: bypass on or off (the dry clip in both ears, no filter)"),
+    Key("store_a", ("Shift+A",), "audition: store the current pose as A"),
+    Key("store_b", ("Shift+B",), "audition: store the current pose as B"),
+    Key("recall_a", ("A",), "audition: go to pose A"),
+    Key("recall_b", ("B",), "audition: go to pose B"),
+    Key("flip_ab", ("X",), "audition: flip between poses A and B"),
+    Key("ground_truth", ("N",), "audition: play the recording at the nearest recorded pose once (scenes with recordings)"),
+    Key("undo", ("Ctrl+Z",), "undo the last pose change (a drag, a typed value, a turn, a recalled pose)"),
+    Key("redo", ("Ctrl+Shift+Z", "Ctrl+Y"), "redo the pose change undone"),
+    *(Key(f"save_view_{i}", (f"Ctrl+{i}",), f"save the camera as viewpoint {i}") for i in range(1, 5)),
+    *(Key(f"recall_view_{i}", (f"{i}",), f"camera: go to viewpoint {i}") for i in range(1, 5)),
     Key("open_scene", ("Ctrl+O",), "open another scene (checkpoint)"),
     Key("help", ("F1",), "this help"),
     Key("quit", ("Ctrl+Q",), "quit"),
@@ -43,8 +54,11 @@ MOUSE: tuple[tuple[str, str], ...] = (
     ("Ctrl + left-drag", "roll the view about its centre"),
 )
 
-FIELDS = ("Pose panel: type a listener x, y, z or yaw, or a source x, y, z, and press Enter; "
-          "a position outside the room is moved to the nearest place inside it, and the panel says so. "
+FIELDS = ("Pose panel: type a listener x, y, z or yaw, or a source x, y, z, and press Enter (Escape: "
+          "leave the field unchanged); either gives the keys back to the window. Letter keys act even while a "
+          "field has focus, unless a value is being typed in it; digits go to the field. "
+          "Drop a .ckpt (scene) or a .wav (clip) file onto the window to open it. A "
+          "position outside the room is moved to the nearest place inside it, and the panel says so. "
           "The source's fields are read-only when the scene was trained with one source position.")
 
 

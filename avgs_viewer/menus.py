@@ -51,6 +51,21 @@ class Menus:
     response_action: QtGui.QAction  # checkable: the impulse-response panel shown
     record_path_action: QtGui.QAction  # checkable: the listener's path being recorded
     export_actions: dict[str, QtGui.QAction]  # "impulse", "grid", "save_path", "flythrough"
+    menus: dict[str, QtWidgets.QMenu]  # "file", "view", "help": where other parts add their entries
+
+
+def add_action(window: QtWidgets.QWidget, menu: QtWidgets.QMenu, text: str, slot: Callable[[], object],
+               key_name: str | None = None, key_actions: dict[str, QtGui.QAction] | None = None) -> QtGui.QAction:
+    """A menu entry of ``window``; ``key_name`` names its keys in ``help.KEYS`` (kept in ``key_actions``)."""
+    act = QtGui.QAction(text, window)
+    if key_name is not None:
+        act.setShortcuts([QtGui.QKeySequence(k) for k in help_key(key_name).keys])
+        act.setShortcutContext(QtCore.Qt.ShortcutContext.WindowShortcut)
+        if key_actions is not None:
+            key_actions[key_name] = act
+    act.triggered.connect(lambda _=False: slot())
+    menu.addAction(act)
+    return act
 
 
 def build_menus(window: QtWidgets.QMainWindow, do: MenuCommands) -> Menus:
@@ -60,14 +75,7 @@ def build_menus(window: QtWidgets.QMainWindow, do: MenuCommands) -> Menus:
     def action(menu: QtWidgets.QMenu, text: str, slot: Callable[[], object],
                key_name: str | None = None) -> QtGui.QAction:
         """A menu entry; ``key_name`` names its keys in ``help.KEYS``."""
-        act = QtGui.QAction(text, window)
-        if key_name is not None:
-            act.setShortcuts([QtGui.QKeySequence(k) for k in help_key(key_name).keys])
-            act.setShortcutContext(QtCore.Qt.ShortcutContext.WindowShortcut)
-            key_actions[key_name] = act
-        act.triggered.connect(lambda _=False: slot())
-        menu.addAction(act)
-        return act
+        return add_action(window, menu, text, slot, key_name, key_actions)
 
     # The bar and its menus are made here, not taken from Qt's getters: a wrapper PySide hands
     # back for a C++-made object can be a stale one of an object freed at the same address (a
@@ -110,7 +118,8 @@ def build_menus(window: QtWidgets.QMainWindow, do: MenuCommands) -> Menus:
     response.setChecked(True)
     help_menu = menu("&Help")
     action(help_menu, "&Keys and mouse", do.show_help, "help")
-    return Menus(key_actions, export_shot, export_audio, response, record, exports)
+    return Menus(key_actions, export_shot, export_audio, response, record, exports,
+                 {"file": file_menu, "view": view_menu, "help": help_menu})
 
 
 def help_dialog(parent: QtWidgets.QWidget) -> QtWidgets.QMessageBox:

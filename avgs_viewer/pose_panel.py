@@ -6,6 +6,11 @@ fields accept any number: the state keeps the position inside the room, and the 
 then shows where it went and says so in ``notice`` (the state's ``clamped`` event), rather
 than the field silently refusing the value. When the state keeps the source fixed (a scene
 trained with one source position) its fields are read-only and ``source_note`` says why.
+
+Keys (:class:`FieldKeys`): a letter key (the window's single-letter shortcuts: T, Q, R, ...)
+acts even while a field has focus, unless a value is being typed in it; Enter (the value
+taken) or Escape (the value shown again unchanged) leaves the field (``left``: the window gives
+the focus to the 3D view), and the keys act again.
 """
 
 from __future__ import annotations
@@ -15,6 +20,49 @@ from typing import Any, Callable
 from PySide6 import QtCore, QtWidgets
 
 from .state import Event, ViewerState
+
+_LETTERS = range(int(QtCore.Qt.Key.Key_A.value), int(QtCore.Qt.Key.Key_Z.value) + 1)
+_NO_LETTER_MODIFIERS = (QtCore.Qt.KeyboardModifier.ControlModifier | QtCore.Qt.KeyboardModifier.AltModifier
+                        | QtCore.Qt.KeyboardModifier.MetaModifier)
+
+
+class FieldKeys(QtCore.QObject):
+    """Letter keys pass through a number field to the window's shortcuts unless a value is being
+    typed in it; Enter and Escape leave the field (calling ``leave``), Escape showing ``restore``'s value."""
+
+    def __init__(self, parent: QtCore.QObject, leave: Callable[[], None]):
+        super().__init__(parent)
+        self.leave = leave
+        self.editing: set[QtWidgets.QAbstractSpinBox] = set()
+
+    def watch(self, box: QtWidgets.QAbstractSpinBox, restore: Callable[[], None]) -> None:
+        box._restore = restore  # type: ignore[attr-defined]
+        box.installEventFilter(self)
+        box.lineEdit().installEventFilter(self)
+        box.lineEdit().textEdited.connect(lambda _t, b=box: self.editing.add(b))
+        box.editingFinished.connect(lambda b=box: self.editing.discard(b))
+
+    def eventFilter(self, obj: QtCore.QObject, event: QtCore.QEvent) -> bool:  # noqa: N802
+        box = obj if isinstance(obj, QtWidgets.QAbstractSpinBox) else obj.parent()
+        if not isinstance(box, QtWidgets.QAbstractSpinBox):
+            return False
+        kind = event.type()
+        if kind == QtCore.QEvent.Type.ShortcutOverride:
+            letter = event.key() in _LETTERS and not (event.modifiers() & _NO_LETTER_MODIFIERS)
+            if letter and box not in self.editing:
+                event.ignore()
+                return True  # not taken by the field: the window's shortcut acts
+        elif kind == QtCore.QEvent.Type.KeyPress and obj is box:
+            if event.key() == QtCore.Qt.Key.Key_Escape:
+                self.editing.discard(box)
+                box._restore()  # type: ignore[attr-defined]
+                self.leave()
+                return True
+            if event.key() in (QtCore.Qt.Key.Key_Return, QtCore.Qt.Key.Key_Enter):
+                QtCore.QTimer.singleShot(0, self.leave)  # after the field has taken the value
+        elif kind == QtCore.QEvent.Type.FocusOut and obj is box:
+            self.editing.discard(box)
+        return False
 
 LIMIT = 1e6  # what a field accepts; the state, not the field, decides what is inside the room
 SOURCE_FIXED_NOTE = "<i>Source fixed:</i> the scene was trained with this source position only."
@@ -34,6 +82,8 @@ def _field(suffix: str = "", decimals: int = 2) -> QtWidgets.QDoubleSpinBox:
 
 class PosePanel(QtWidgets.QGroupBox):
     """x, y, z of the listener and the source, the listener's yaw; a note when a position was clamped."""
+
+    left = QtCore.Signal()  # Enter or Escape left a field: the keys are the window's again
 
     def __init__(self, parent: QtWidgets.QWidget | None = None):
         super().__init__("Pose (world coordinates)", parent)
@@ -75,6 +125,17 @@ class PosePanel(QtWidgets.QGroupBox):
         for box in self.source:
             box.editingFinished.connect(self._source_typed)
         self.yaw.editingFinished.connect(self._yaw_typed)
+        self.keys = FieldKeys(self, self._leave)
+        for box in self.listener:
+            self.keys.watch(box, lambda: self.state and self._show_listener(self.state.listener))
+        for box in self.source:
+            self.keys.watch(box, lambda: self.state and self._show_source(self.state.source))
+        self.keys.watch(self.yaw, lambda: self.state and self._show_yaw(self.state.yaw))
+
+    def _leave(self) -> None:
+        focused = QtWidgets.QApplication.focusWidget()
+        if focused is not None and self.isAncestorOf(focused):
+            self.left.emit()
 
     def bind(self, state: ViewerState) -> None:
         """Mirror ``state`` in the fields (and typed values into it)."""

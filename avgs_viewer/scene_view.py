@@ -128,6 +128,7 @@ class SceneView:
         disable_vtk_keys(plotter)
         plotter.set_background([c / 255 for c in BACKGROUND])
         self._points_actor = None
+        self.point_size = POINT_SIZE  # pixels (View's point-size control: set_point_size)
         self._cloud: pv.PolyData | None = None
         self._emptied = False  # the points actor is hidden because the slice holds no point
         self._fast_cloud: pv.PolyData | None = None  # what is drawn while anything moves
@@ -480,7 +481,7 @@ class SceneView:
         shown = self._fast_cloud if self.state.interacting else cloud
         if self._points_actor is None:
             self._points_actor = self.plotter.add_mesh(
-                shown, scalars="colours", rgb=True, style="points", point_size=POINT_SIZE,
+                shown, scalars="colours", rgb=True, style="points", point_size=self.point_size,
                 render_points_as_spheres=not self.state.interacting, lighting=False,
                 name="audio_points", pickable=False, reset_camera=False)
         else:
@@ -521,5 +522,10 @@ class SceneView:
             self._points_actor.mapper.SetInputData(self._fast_cloud if fast else self._cloud)
         prop = self._points_actor.prop
         prop.render_points_as_spheres = not fast
-        prop.point_size = POINT_SIZE - 2 if fast else POINT_SIZE
+        prop.point_size = max(self.point_size - 2, 1.0) if fast else self.point_size
         self.plotter.render()
+
+    def set_point_size(self, size: float) -> None:
+        """The audio points' size on screen, pixels."""
+        self.point_size = float(size)
+        self.set_fast(self.state.interacting)
