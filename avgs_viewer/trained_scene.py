@@ -41,6 +41,11 @@ class TrainedScene(Protocol):
 
     # -- what is drawn -----------------------------------------------------------------
     @property
+    def name(self) -> str:
+        """The scene's name (its folder's, as trained), for titles of what is exported."""
+        ...
+
+    @property
     def points(self) -> np.ndarray:
         """Audio point positions ``[N, 3]`` float32, world (read-only)."""
         ...

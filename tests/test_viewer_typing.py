@@ -36,6 +36,7 @@ NOT_THE_SCENE = {
     ("app.py", "resolve_scene", "scene"): "Path | None",  # the checkpoint's path
     ("app.py", "run_headless", "scene"): "Path",
     ("app.py", "run_window", "scene"): "Path",
+    ("flythrough.py", "run_flythrough", "scene"): "Path",
     ("trained_scene.py", "_provided", "renderer"): "SceneRenderer",  # the library's, checked against the protocol
 }
 NOT_THE_SCENE_CLASSES = {("scene_view.py", "VtkProjector")}  # its self.renderer is VTK's
