@@ -176,6 +176,7 @@ class Navigation(QtCore.QObject):
     # ------------------------------------------------------------------ recent files
     def opened(self, path: str | Path) -> None:
         add_recent(path)
+        self._fill_recent()
 
     def _fill_recent(self) -> None:
         self.recent_menu.clear()
