@@ -19,6 +19,10 @@ loss). Every ``eval_every`` iterations the log-magnitude RMSE on val (``val_logm
 logged beside that of the training responses' mean (``val_logmag_mean``: predicting the mean
 response); at the end T60 / C50 / EDT errors (:mod:`avgs.evaluation.metrics`) of the waveforms on val
 and heldout, for each phase reconstruction (:func:`~avgs.acoustics.rir_model.response_waveform`).
+
+Memory grows with the batch, not the scene: only positions are held per response; the responses
+are read from the scene (:meth:`avgs.data.rir.RIRScene.read`) a batch or a chunk at a time and
+their float32 STFT targets computed there, once per use (benchmarks/memory.md).
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ import torch
 from avgs import dsp
 from avgs.acoustics.interaural import DEFAULT_SCALE, fit_scale
 from avgs.acoustics.rir_model import RIRModel, response_waveform
-from avgs.config import TrainConfig
+from avgs.config import STFTConfig, TrainConfig
 from avgs.data.frame import signed_direction
 from avgs.data.rir import RIRScene
 from avgs.data.rwavs import RWAVSScene
@@ -60,18 +64,46 @@ def rir_quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
     return cfg
 
 
+CHUNK = 32
+"Responses read and transformed at a time outside the training step (statistics, evaluation)."
+
+
 @dataclass(frozen=True)
 class RIRData:
-    """One split's responses as the trainer uses them (normalised positions, radians)."""
+    """One split's rows as the trainer uses them: positions in memory (normalised, radians), the
+    responses read from ``scene`` when asked for, with their floored log-magnitude targets."""
 
     listener: torch.Tensor  # [M, 3] float32
     source: torch.Tensor  # [M, 3] float32
     yaw: torch.Tensor  # [M] float32 radians
-    log_mag: torch.Tensor  # [M, 2, F, N] float32, floored
-    rir: np.ndarray  # [M, 2, L] float32, the responses themselves (for T60 / C50 / EDT)
+    scene: RIRScene
+    split: str
+    rows: np.ndarray  # [M] int64, rows of the split (RIRScene.index)
+    log_floor: float
+    stft: STFTConfig
+    smooth_bins: int = 1
 
     def __len__(self) -> int:
         return int(self.listener.shape[0])
+
+    def responses(self, idx) -> np.ndarray:
+        """The responses [B, 2, L] float32 of rows ``idx`` of this set, read now."""
+        return self.scene.read(self.split, self.rows[np.asarray(idx, dtype=np.int64).reshape(-1)])
+
+    def log_mag(self, idx) -> torch.Tensor:
+        """The targets [B, 2, F, N] float32 of rows ``idx``: floored log magnitudes of their responses."""
+        return floored_log_magnitude(self.responses(idx), self.log_floor, self.stft, self.smooth_bins)
+
+    def subset(self, pick) -> "RIRData":
+        """The rows ``pick`` of this set."""
+        pick = np.asarray(pick, dtype=np.int64).reshape(-1)
+        t = torch.as_tensor(pick)
+        return RIRData(self.listener[t], self.source[t], self.yaw[t], self.scene, self.split, self.rows[pick],
+                       self.log_floor, self.stft, self.smooth_bins)
+
+    def chunks(self, size: int = CHUNK):
+        """Index ranges of at most ``size`` rows covering the set, in order."""
+        return (np.arange(i, min(i + size, len(self))) for i in range(0, len(self), size))
 
 
 def envelope_magnitude(rir, stft, smooth_bins: int = 1) -> torch.Tensor:
@@ -95,15 +127,34 @@ def floored_log_magnitude(rir, log_floor: float, stft, smooth_bins: int = 1) -> 
     return torch.log(envelope_magnitude(rir, stft, smooth_bins).clamp_min(math.exp(log_floor))).float()
 
 
-def rir_data(responses, log_floor: float, stft, smooth_bins: int = 1) -> RIRData:
-    """:class:`RIRData` of an ``avgs.data.rir.RIRSet``."""
+def rir_data(scene: RIRScene, split: str, log_floor: float, stft, smooth_bins: int = 1) -> RIRData:
+    """:class:`RIRData` of ``split`` of an :class:`~avgs.data.rir.RIRScene` (positions only; nothing read yet)."""
+    rows = scene.index(split)
     return RIRData(
-        listener=torch.as_tensor(np.asarray(responses.receiver), dtype=torch.float32),
-        source=torch.as_tensor(np.asarray(responses.source), dtype=torch.float32),
-        yaw=torch.as_tensor(np.radians(np.asarray(responses.yaw, dtype=np.float64)), dtype=torch.float32),
-        log_mag=floored_log_magnitude(responses.rir, log_floor, stft, smooth_bins),
-        rir=np.asarray(responses.rir, dtype=np.float32),
+        listener=torch.as_tensor(np.asarray(rows.receiver), dtype=torch.float32),
+        source=torch.as_tensor(np.asarray(rows.source), dtype=torch.float32),
+        yaw=torch.as_tensor(np.radians(np.asarray(rows.yaw, dtype=np.float64)), dtype=torch.float32),
+        scene=scene, split=split, rows=np.arange(len(rows), dtype=np.int64), log_floor=float(log_floor), stft=stft,
+        smooth_bins=int(smooth_bins),
     )
+
+
+def peak_magnitude(scene: RIRScene, split: str, stft) -> float:
+    """The largest STFT magnitude of ``split``'s responses, read a chunk at a time."""
+    n, peak = len(scene.index(split)), 0.0
+    for i in range(0, n, CHUNK):
+        h = scene.read(split, np.arange(i, min(i + CHUNK, n)))  # [C, 2, L]
+        peak = max(peak, float(dsp.magnitude(torch.from_numpy(h), stft).max()))
+    return peak
+
+
+def mean_log_magnitude(data: RIRData) -> torch.Tensor:
+    """The mean target [2, F, N] float32 over ``data``, summed a chunk at a time in float64."""
+    total = None
+    for idx in data.chunks():
+        part = data.log_mag(idx).double().sum(0)  # [2, F, N]
+        total = part if total is None else total + part
+    return (total / len(data)).float()
 
 
 class RIRTrainer(Stage2Trainer):
@@ -113,13 +164,14 @@ class RIRTrainer(Stage2Trainer):
 
     def __init__(self, model: RIRModel, train_data: RIRData, cfg: TrainConfig, device: str | torch.device = "cpu"):
         self._init_optimisation(model, train_data, cfg, device)
-        self._batch = {k: getattr(train_data, k).to(self.device) for k in ("listener", "source", "yaw", "log_mag")}
+        self._batch = {k: getattr(train_data, k).to(self.device) for k in ("listener", "source", "yaw")}
         self._bands = band_masks(cfg.stft.n_freq, cfg.stft.sample_rate).to(self.device)  # [K, F]
 
     def step(self) -> dict:
         """One iteration on a random batch of responses; returns the losses and point bookkeeping."""
         idx = self._begin_step()
         b = {k: v[idx] for k, v in self._batch.items()}
+        b["log_mag"] = self.data.log_mag(idx.cpu().numpy()).to(self.device)  # [B, 2, F, N], read for this batch
         pred, lis_idx, src_idx = self.model(b["listener"], b["yaw"], b["source"])  # [B, 2, F, N]
         loss_m = torch.nn.functional.mse_loss(pred, b["log_mag"])
         if self.cfg.rir.energy_weight > 0:
@@ -130,21 +182,30 @@ class RIRTrainer(Stage2Trainer):
         return self._update(loss_m, lis_idx, src_idx)
 
     @torch.no_grad()
-    def predict(self, data: RIRData, chunk: int = 16) -> torch.Tensor:
-        """Predicted log magnitudes [M, 2, F, N] of every response of ``data``."""
+    def predict(self, data: RIRData, rows=None, cache=None) -> torch.Tensor:
+        """Predicted log magnitudes [B, 2, F, N] of rows ``rows`` of ``data`` (all when None)."""
         self.model.eval()
-        cache = self.model.precompute()
-        out = [self.model.log_magnitudes(data.listener[i : i + chunk].to(self.device), data.yaw[i : i + chunk].to(self.device),
-                                         data.source[i : i + chunk].to(self.device), cache)[0].cpu()
-               for i in range(0, len(data), chunk)]
+        cache = self.model.precompute() if cache is None else cache
+        t = torch.arange(len(data)) if rows is None else torch.as_tensor(np.asarray(rows, dtype=np.int64)).reshape(-1)
+        out = [self.model.log_magnitudes(data.listener[c].to(self.device), data.yaw[c].to(self.device),
+                                         data.source[c].to(self.device), cache)[0].cpu() for c in t.split(16)]
         return torch.cat(out)
 
-    def evaluate(self, data: RIRData, prefix: str = "val") -> dict:
-        """RMSE of the log magnitudes, the model's and the mean response's."""
-        pred = self.predict(data)
+    @torch.no_grad()
+    def evaluate(self, data: RIRData, prefix: str = "val", chunk: int = 16) -> dict:
+        """RMSE of the log magnitudes, the model's and the mean response's, ``chunk`` responses at a time."""
+        self.model.eval()
+        cache = self.model.precompute()
         mean = self.model.binauralizer.mean.detach().cpu()
-        return {f"{prefix}_logmag": float(torch.sqrt(torch.mean((pred - data.log_mag) ** 2))),
-                f"{prefix}_logmag_mean": float(torch.sqrt(torch.mean((mean[None] - data.log_mag) ** 2)))}
+        sq_model = sq_mean = 0.0
+        count = 0
+        for idx in data.chunks(chunk):
+            target = data.log_mag(idx)  # [C, 2, F, N]
+            pred = self.predict(data, idx, cache)
+            sq_model += float(torch.sum((pred - target).double() ** 2))
+            sq_mean += float(torch.sum((mean[None] - target).double() ** 2))
+            count += target.numel()
+        return {f"{prefix}_logmag": math.sqrt(sq_model / count), f"{prefix}_logmag_mean": math.sqrt(sq_mean / count)}
 
     def room_metrics(self, data: RIRData, prefix: str, limit: int, phases=PHASES) -> dict:
         """T60 % / C50 dB / EDT s errors of the predicted waveforms on at most ``limit`` responses of
@@ -154,10 +215,11 @@ class RIRTrainer(Stage2Trainer):
         if len(data) == 0 or limit < 1:
             return {}
         pick = np.unique(np.linspace(0, len(data) - 1, min(limit, len(data))).round().astype(int))
-        sub = RIRData(data.listener[pick], data.source[pick], data.yaw[pick], data.log_mag[pick], data.rir[pick])
+        sub = data.subset(pick)
+        gt = sub.responses(np.arange(len(sub)))  # [M, 2, L]
         mags = self.model.magnitudes(self.predict(sub))  # [M, 2, F, N]
         direct = self.model.direct_sound(sub.listener.to(self.device), sub.yaw.to(self.device), sub.source.to(self.device))
-        fs, length = self.cfg.stft.sample_rate, sub.rir.shape[-1]
+        fs, length = self.cfg.stft.sample_rate, gt.shape[-1]
         out: dict = {}
         rc = self.cfg.rir
         chosen = next((label for label, (ph, it) in phases.items() if ph == rc.phase and (ph == "noise" or it == rc.phase_iterations)), None)
@@ -167,7 +229,7 @@ class RIRTrainer(Stage2Trainer):
             todo[chosen] = (rc.phase, rc.phase_iterations)
         for label, (phase, its) in todo.items():
             wave = response_waveform(mags, length, self.cfg.stft, phase, its, direct=direct).numpy()  # [M, 2, L]
-            errs = np.array([[t60_error(p, g, fs), c50_error(p, g, fs), edt_error(p, g, fs)] for p, g in zip(wave, sub.rir)])
+            errs = np.array([[t60_error(p, g, fs), c50_error(p, g, fs), edt_error(p, g, fs)] for p, g in zip(wave, gt)])
             key = f"{prefix}_phase_{label.replace(' ', '_')}"
             out[key] = {"t60": float(errs[:, 0].mean()), "c50": float(errs[:, 1].mean()), "edt": float(errs[:, 2].mean())}
             if label == chosen:
@@ -200,7 +262,7 @@ class ImpulseResponseTraining:
         if int(self.responses.sample_rate) != cfg.stft.sample_rate:
             raise ValueError(f"{self.responses.scene_dir}: responses at {self.responses.sample_rate} Hz, "
                              f"the model runs at {cfg.stft.sample_rate} Hz")
-        self.train_set = self.responses.responses("train")
+        self.train_set = self.responses.index("train")  # positions only: the responses are read a batch at a time
         if len(self.train_set) == 0:
             raise ValueError(f"{self.responses.scene_dir}: no training responses")
         self.evals: dict[str, RIRData] = {}
@@ -218,7 +280,9 @@ class ImpulseResponseTraining:
             theta = signed_direction(torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
                                      torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64))),
                                      torch.as_tensor(np.asarray(train.source), dtype=torch.float64))
-            itds = [spatial.response_itd(h, cfg.stft.sample_rate) for h in np.asarray(train.rir)]
+            n = len(train)
+            itds = [spatial.response_itd(h, cfg.stft.sample_rate)
+                    for i in range(0, n, CHUNK) for h in self.responses.read("train", np.arange(i, min(i + CHUNK, n)))]
             self.itd_scale = fit_scale(theta.numpy(), itds)
             log.write({"stage": "itd", "event": "fit", "scale_us": self.itd_scale * 1e6, "default_us": DEFAULT_SCALE * 1e6,
                        "responses": len(itds)})
@@ -235,20 +299,20 @@ class ImpulseResponseTraining:
         if resumed:
             log_floor = float(model.binauralizer.log_floor)
         else:
-            peak = float(dsp.magnitude(torch.as_tensor(self.train_set.rir), cfg.stft).max())
+            peak = peak_magnitude(self.responses, "train", cfg.stft)
             if not (math.isfinite(peak) and peak > 0):
                 raise ValueError(f"{self.responses.scene_dir}: the training responses are silent or not finite")
             log_floor = math.log(peak) + cfg.rir.floor_db / 20.0 * math.log(10.0)
-        train = rir_data(self.train_set, log_floor, cfg.stft, cfg.rir.smooth_bins)
+        train = rir_data(self.responses, "train", log_floor, cfg.stft, cfg.rir.smooth_bins)
         if not resumed:
             with torch.no_grad():
                 model.binauralizer.log_floor.fill_(log_floor)
-                model.binauralizer.mean.copy_(train.log_mag.mean(0))
+                model.binauralizer.mean.copy_(mean_log_magnitude(train))
                 if hasattr(model.binauralizer, "log_distance_mean"):
                     model.binauralizer.log_distance_mean.fill_(
                         float(torch.log(torch.linalg.vector_norm(train.source - train.listener, dim=-1).clamp_min(1e-3)).mean()))
-        splits = {name: self.responses.responses(name) for name in ("val", "heldout")}
-        self.evals = {name: rir_data(s, log_floor, cfg.stft, cfg.rir.smooth_bins) for name, s in splits.items() if len(s)}
+        self.evals = {name: rir_data(self.responses, name, log_floor, cfg.stft, cfg.rir.smooth_bins)
+                      for name in ("val", "heldout") if len(self.responses.pairs[name])}
         return RIRTrainer(model, train, cfg, cfg.device)
 
     def validate(self, trainer: RIRTrainer) -> dict:

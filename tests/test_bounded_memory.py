@@ -1,0 +1,181 @@
+"""Memory grows with the batch or the block, not with the scene or the clip (issue 32, item 5).
+
+- Training of the impulse-response task reads a batch of responses at a time: its targets equal
+  those of the whole split, and the Python-visible memory (tracemalloc: numpy arrays, the
+  responses read) of its set-up, steps and evaluation on a scene of 4N responses stays within
+  a factor of that on N responses. Before, the whole split was read (and transformed) at once.
+- :func:`avgs.render.chunked.render_to_file` writes a render block by block: equal to the
+  whole render to float rounding, and its tracemalloc peak for a 4x longer clip stays within a
+  factor of the shorter one's (the one-shot render holds the whole output).
+
+Figures and commands: benchmarks/memory.md.
+"""
+
+from __future__ import annotations
+
+import json
+import tracemalloc
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import soundfile as sf
+import torch
+from scipy.io import wavfile
+
+from avgs.acoustics.points import AudioPoints
+from avgs.config import STFT, SynthesisConfig
+from avgs.data.rir import RIRScene, rir_file_name
+from avgs.render.chunked import render_to_file
+from avgs.render.renderer import SceneRenderer
+from avgs.train.impulse_responses import (
+    RIRTrainer, floored_log_magnitude, mean_log_magnitude, peak_magnitude, rir_data, rir_quick_config)
+
+SR = STFT.sample_rate
+DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
+LENGTH = 128 * 258  # 1.5 s, the longest response a scene may hold
+
+
+def write_rir_scene(root: Path, receivers: int, seed: int = 0) -> Path:
+    """A valid impulse-response scene without its RWAVS part: source 0 heard by ``receivers``
+    receivers (3 of 4 train, the rest val), source 1 held out at 2 of them; 4 orientations of
+    decaying noise, 1.5 s each."""
+    rng = np.random.default_rng(seed)
+    scene = root / f"grid_{receivers}"
+    (scene / "rir").mkdir(parents=True)
+    n_train = receivers * 3 // 4
+    splits = {"train": [[0, r] for r in range(n_train)], "val": [[0, r] for r in range(n_train, receivers)],
+              "heldout": [[1, 0], [1, 1]]}
+    index = {"format": "avgs-rir/1", "sample_rate": SR, "orientations_deg": [0, 90, 180, 270],
+             "sources": [[0.1, 0.2, 0.0], [-0.5, 0.3, 0.0]],
+             "receivers": rng.uniform(-0.9, 0.9, (receivers, 3)).round(4).tolist(), "splits": splits}
+    (scene / "rir" / "index.json").write_text(json.dumps(index))
+    decay = np.exp(-np.arange(LENGTH) / (0.1 * SR)).astype(np.float32)
+    for s, r in (p for k in splits.values() for p in k):
+        for y in index["orientations_deg"]:
+            h = (rng.standard_normal((LENGTH, 2)).astype(np.float32) * decay[:, None] * 0.1)
+            wavfile.write(scene / "rir" / rir_file_name(s, r, y), SR, h)
+    return scene
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    root = tmp_path_factory.mktemp("grids")
+    return {n: write_rir_scene(root, n) for n in (8, 32)}  # 32 and 128 training responses
+
+
+def train_briefly(scene_dir: Path) -> dict:
+    """What ImpulseResponseTraining does with a scene: the floor, the mean target, a trainer, 3 steps, val."""
+    torch.manual_seed(0)
+    scene = RIRScene(scene_dir)
+    cfg = rir_quick_config()
+    cfg.rir.width, cfg.acoustic.batch_size = 32, 4
+    cfg.rir.length, cfg.rir.frames = scene.length, 1 + scene.length // STFT.hop_length
+    log_floor = float(np.log(peak_magnitude(scene, "train", STFT))) - 8.0
+    train = rir_data(scene, "train", log_floor, STFT, cfg.rir.smooth_bins)
+    from avgs.acoustics.rir_model import RIRModel
+
+    points = AudioPoints(torch.rand(200, 3) * 2 - 1, torch.randn(200, 52))
+    model = RIRModel.build(points, cfg, STFT)
+    with torch.no_grad():
+        model.binauralizer.log_floor.fill_(log_floor)
+        model.binauralizer.mean.copy_(mean_log_magnitude(train))
+    trainer = RIRTrainer(model, train, cfg)
+    for _ in range(3):
+        trainer.step()
+    return trainer.evaluate(rir_data(scene, "val", log_floor, STFT, cfg.rir.smooth_bins))
+
+
+def test_batch_targets_equal_the_whole_splits(scenes):
+    scene = RIRScene(scenes[8])
+    data = rir_data(scene, "train", -9.0, STFT, 9)
+    whole = floored_log_magnitude(scene.responses("train").rir, -9.0, STFT, 9)  # [M, 2, F, N]
+    idx = np.array([3, 0, 17, 3, 23])
+    assert torch.equal(data.log_mag(idx), whole[idx])
+    torch.testing.assert_close(mean_log_magnitude(data), whole.double().mean(0).float(), rtol=0, atol=1e-6)
+    assert peak_magnitude(scene, "train", STFT) == pytest.approx(float(torch.stft(
+        torch.from_numpy(scene.responses("train").rir.reshape(-1, LENGTH)), 512, 128, window=torch.hann_window(512),
+        return_complex=True).abs().max()), rel=1e-6)
+
+
+def traced_peak(fn) -> int:
+    tracemalloc.start()
+    try:
+        fn()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_training_memory_does_not_grow_with_the_scene(scenes):
+    train_briefly(scenes[8])  # warm up: imports, caches
+    small = traced_peak(lambda: train_briefly(scenes[8]))
+    large = traced_peak(lambda: train_briefly(scenes[32]))
+    whole_split = 96 * 2 * LENGTH * 4  # the larger scene's 96 training responses in float32: 25 MB
+    assert large < 1.5 * small + 2e6, (small, large)  # measured 18.0 MB and 18.0 MB: a chunk of 32 responses
+    assert large < whole_split, (large, whole_split)  # the split read at once (before: 25 + 8 MB of val)
+
+
+@pytest.fixture(scope="module")
+def renderers(one_source_ckpt):
+    return {"rir": SceneRenderer.load(DEMO), "binaural": SceneRenderer.load(one_source_ckpt)}
+
+
+def noise(n: int, seed: int = 0) -> np.ndarray:
+    return (np.random.default_rng(seed).standard_normal(n) * 0.2).astype(np.float32)
+
+
+@pytest.mark.parametrize("task", ["rir", "binaural"])
+@pytest.mark.parametrize("method", ["spectrogram", "filter"])
+def test_a_render_written_in_blocks_equals_the_whole_render(renderers, task, method, tmp_path):
+    r = renderers[task]
+    r.synthesis = SynthesisConfig(method=method)
+    x = noise(20 * SR, seed=3)
+    lo, hi = r.bounds
+    listener, yaw = lo + 0.4 * (hi - lo), 70.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        whole = r.render(listener, yaw, x)
+        result, n = render_to_file(r, tmp_path / "out.wav", listener, yaw, x, block=5000)
+    y = sf.read(str(tmp_path / "out.wav"), dtype="float32", always_2d=True)[0].T  # [2, T]
+    assert n == len(x) and y.shape == whole.binaural.shape
+    top = float(np.abs(whole.binaural).max())
+    # float rounding; the mid phase's through its 12 phase iterations (tests/test_stability.py)
+    tol = 1e-4 if (task, method) == ("binaural", "spectrogram") else 1e-6
+    assert np.abs(y - whole.binaural).max() <= tol * top
+    assert result.theta == pytest.approx(whole.theta) and result.binaural is None
+    assert [p.name for p in tmp_path.iterdir()] == ["out.wav"]  # nothing else left
+
+
+def test_a_render_to_a_fixed_point_format_is_scaled_to_full_scale(renderers, tmp_path):
+    r = renderers["rir"]
+    r.synthesis = SynthesisConfig(method="filter")
+    x = noise(3 * SR, seed=1) * 20  # peaks far beyond full scale
+    lo, hi = r.bounds
+    listener = lo + 0.4 * (hi - lo)
+    whole = r.render(listener, 10.0, x).binaural
+    with pytest.warns(UserWarning, match=r"scaled down by that much to fit PCM_24"):
+        render_to_file(r, tmp_path / "out.flac", listener, 10.0, x, format="FLAC", subtype="PCM_24", block=4096)
+    y = sf.read(str(tmp_path / "out.flac"), dtype="float32", always_2d=True)[0].T
+    assert np.abs(y).max() <= 1.0
+    np.testing.assert_allclose(y, whole / np.abs(whole).max(), atol=2e-6)  # 24-bit rounding
+
+
+@pytest.mark.parametrize("task", ["rir", "binaural"])
+def test_render_memory_does_not_grow_with_the_clip(renderers, task, tmp_path):
+    r = renderers[task]
+    r.synthesis = SynthesisConfig()
+    lo, hi = r.bounds
+    listener = lo + 0.4 * (hi - lo)
+    short, long = noise(15 * SR), noise(60 * SR)
+
+    def run(x):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            render_to_file(r, tmp_path / "out.wav", listener, 0.0, x, block=1 << 15)
+
+    run(short)  # warm up
+    a, b = traced_peak(lambda: run(short)), traced_peak(lambda: run(long))
+    assert b < 1.3 * a + 1e6, (a, b)
+    assert b < 2 * long.nbytes  # the whole render ([2, T] float32) would be 2x the input alone
