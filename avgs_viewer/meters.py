@@ -37,7 +37,7 @@ class LevelMeter(QtWidgets.QWidget):
         self.peak_held: float = FLOOR_DB  # dB: the line's place
         self._peak_at = -math.inf
         self._clock = clock
-        self.setMinimumSize(120, 22)
+        self.setMinimumSize(120, 30)
         self.setSizePolicy(QtWidgets.QSizePolicy.Policy.Expanding, QtWidgets.QSizePolicy.Policy.Fixed)
 
     # -- the QProgressBar-like part (tenths of a dB)
@@ -85,7 +85,7 @@ class LevelMeter(QtWidgets.QWidget):
         for lo, hi, colour in ((FLOOR_DB, -18.0, (60, 180, 75)), (-18.0, -6.0, (230, 200, 40)), (-6.0, 0.0, (220, 60, 40))):
             a, b = self._x(lo, w), min(self._x(hi, w), x)
             if b > a:
-                p.fillRect(a, 1, b - a, bar_h - 2, QtGui.QColor(*colour))
+                p.fillRect(a, 0, b - a, bar_h, QtGui.QColor(*colour))
         if self.peak_held > self._min / 10.0:
             px = self._x(self.peak_held, w)
             p.fillRect(max(px - 1, 0), 0, 2, bar_h, QtGui.QColor(255, 255, 255))

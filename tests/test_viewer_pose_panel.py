@@ -85,9 +85,10 @@ def test_typed_pose_moves_the_handles_and_the_sound(qtbot, window):
     w.state.set_source((6.0, 2.0, 1.0))
     assert [b.value() for b in pose.source] == pytest.approx([6.0, 2.0, 1.0] if movable else list(w.renderer.source),
                                                              abs=0.005)
-    # Keys typed into a field stay in it: no turn, no camera preset, no pause.
+    # Keys typed into a field being edited stay in it: no turn, no camera preset, no pause.
     field = (pose.source[1] if movable else pose.listener[1]).lineEdit()  # a field one can type into
     qtbot.mouseClick(field, QtCore.Qt.MouseButton.LeftButton)
+    qtbot.keyClick(field, Key.Key_Backspace)  # a value being typed: letters stay in the field until Enter or Escape
     before = camera(w), w.state.yaw, w.state.playing
     for key in (Key.Key_Left, Key.Key_Right, Key.Key_Q, Key.Key_T, Key.Key_L, Key.Key_Space):
         qtbot.keyClick(field, key)
