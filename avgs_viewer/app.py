@@ -42,6 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", nargs="?", type=Path, default=None,
                    help=f"checkpoint to open (default: the bundled demo, {DEMO_SCENE})")
     p.add_argument("--clip", type=Path, default=None, help="mono (or down-mixed) audio clip to loop")
+    p.add_argument("--osc-port", type=int, default=None, metavar="N",
+                   help="head tracking: follow OSC /ypr (and /xyz) on UDP port N (default off; the usual port: 9000)")
     p.add_argument("--version", action="version", version=f"%(prog)s {version()}")
     g = p.add_argument_group("headless export (no window)")
     g.add_argument("--screenshot", type=Path, default=None, help="write a PNG of the point pattern and exit")
@@ -140,6 +142,8 @@ def run_window(args: argparse.Namespace, scene: Path) -> int:
 
     window = MainWindow(clip_path=args.clip)
     window.show()
+    if args.osc_port is not None:
+        window.set_head_tracking(True, args.osc_port)
     QtCore.QTimer.singleShot(0, lambda: window.open_scene(scene))  # after the window is on screen
     return app.exec()
 
