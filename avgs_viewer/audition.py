@@ -57,11 +57,11 @@ def read_recordings(folder: Path, sample_rate: int) -> list[Recording]:
     from avgs.config import STFTConfig
     from avgs.data.rwavs import RWAVSScene
 
-    scene = RWAVSScene(folder, stft=STFTConfig(sample_rate=sample_rate))
+    recorded = RWAVSScene(folder, stft=STFTConfig(sample_rate=sample_rate))
     out = []
-    for split, clips in (("train", scene.train), ("val", scene.val)):
+    for split, clips in (("train", recorded.train), ("val", recorded.val)):
         for i, clip in enumerate(clips):
-            world = scene.frame.to_world(np.asarray(clip.listener, dtype=np.float64).reshape(1, 3))[0]
+            world = recorded.frame.to_world(np.asarray(clip.listener, dtype=np.float64).reshape(1, 3))[0]
             out.append(Recording(world, float(np.degrees(clip.yaw)) % 360.0,
                                  np.asarray(clip.binaural, dtype=np.float32), f"{split} #{i}"))
     return out

@@ -53,33 +53,33 @@ def add_recent(path: str | Path) -> list[str]:
     return files[:RECENT_MAX]
 
 
-def camera_of(renderer) -> dict:
+def camera_of(vtk_renderer) -> dict:
     """The camera of a VTK renderer as plain values (a viewpoint)."""
-    cam = renderer.GetActiveCamera()
+    cam = vtk_renderer.GetActiveCamera()
     return {"position": list(cam.GetPosition()), "focal_point": list(cam.GetFocalPoint()),
             "view_up": list(cam.GetViewUp()), "view_angle": cam.GetViewAngle(),
             "parallel": bool(cam.GetParallelProjection()), "parallel_scale": cam.GetParallelScale()}
 
 
-def set_camera(renderer, view: dict) -> None:
-    cam = renderer.GetActiveCamera()
+def set_camera(vtk_renderer, view: dict) -> None:
+    cam = vtk_renderer.GetActiveCamera()
     cam.SetPosition(*view["position"])
     cam.SetFocalPoint(*view["focal_point"])
     cam.SetViewUp(*view["view_up"])
     cam.SetViewAngle(float(view["view_angle"]))
     cam.SetParallelProjection(bool(view["parallel"]))
     cam.SetParallelScale(float(view["parallel_scale"]))
-    renderer.ResetCameraClippingRange()
+    vtk_renderer.ResetCameraClippingRange()
 
 
-def fit_orthographic(renderer, bounds: np.ndarray, aspect: float) -> None:
+def fit_orthographic(vtk_renderer, bounds: np.ndarray, aspect: float) -> None:
     """Parallel projection looking down, fitted so the room's floor plan ``bounds [2, 3]`` fills the view."""
     lo, hi = np.asarray(bounds, dtype=np.float64)
     half_h, half_w = 0.5 * (hi[1] - lo[1]), 0.5 * (hi[0] - lo[0])
-    cam = renderer.GetActiveCamera()
+    cam = vtk_renderer.GetActiveCamera()
     cam.SetParallelProjection(True)
     cam.SetParallelScale(1.08 * max(half_h, half_w / max(aspect, 1e-6), 1e-3))  # half the view's height
-    renderer.ResetCameraClippingRange()
+    vtk_renderer.ResetCameraClippingRange()
 
 
 class Navigation(QtCore.QObject):
@@ -166,12 +166,12 @@ class Navigation(QtCore.QObject):
         view = self.window.view
         if view is None:
             return
-        renderer = self.window.plotter.renderer
+        vtk_renderer = self.window.plotter.renderer
         if name == "camera_top":
             size = self.window.plotter.render_window.GetSize()
-            fit_orthographic(renderer, view.bounds, size[0] / max(size[1], 1))
+            fit_orthographic(vtk_renderer, view.bounds, size[0] / max(size[1], 1))
         else:
-            renderer.GetActiveCamera().SetParallelProjection(False)
+            vtk_renderer.GetActiveCamera().SetParallelProjection(False)
 
     # ------------------------------------------------------------------ recent files
     def opened(self, path: str | Path) -> None:
