@@ -291,7 +291,7 @@ def test_render_command_with_a_source(trained, tmp_path):
     y, sr = sf.read(out, dtype="float32", always_2d=True)
     mono, _ = sf.read(wav, dtype="float32")
     assert sr == r.sample_rate and y.shape == (4000, 2)
-    assert np.allclose(y.T, r.render(lis, 30.0, mono, source=src).binaural, atol=1e-6)
+    assert np.allclose(y.T, r.render(lis, 30.0, mono, source=src).binaural, atol=1e-5)  # positions pass through decimal text
 
 
 def test_bench_reports_the_source_aware_render(renderer, tmp_path):
