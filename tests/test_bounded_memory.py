@@ -211,3 +211,30 @@ def test_render_memory_does_not_grow_with_the_clip(one_source_ckpt, task, method
     output_growth = 8 * 90 * SR  # [2, T] float32 of the 90 s more: 16 MB
     # measured (MB, 30 s / 120 s): RIR filter 1.9 / 0.1, binaural mid 24.2 / 23.4; render() + write_audio 17.4 / 43.0
     assert long - short < output_growth / 2, (short, long)
+
+
+def test_avgs_render_of_a_long_clip_goes_in_blocks_and_equals_the_whole_render(renderers, tmp_path, monkeypatch):
+    """`avgs render` renders inputs longer than WHOLE_SECONDS block by block: the same file as the
+    whole render (float rounding), the same line printed."""
+    import avgs.commands.render as render_command
+    from avgs.cli import main as cli_main
+
+    r = renderers["binaural"]
+    x = noise(2 * SR, seed=3)
+    wav = tmp_path / "in.wav"
+    sf.write(wav, x, SR, subtype="FLOAT")
+    lo, hi = r.bounds
+    listener = lo + 0.4 * (hi - lo)
+    argv = ["render", str(r.path), "--listener", *map(str, listener), "--yaw", "20", "--input", str(wav)]
+    assert cli_main([*argv, "--output", str(tmp_path / "whole.wav")]) == 0
+    import avgs.render.chunked as chunked
+
+    calls = []
+    monkeypatch.setattr(chunked, "render_to_file", lambda *a, **k: calls.append(1) or render_to_file(*a, **k))
+    monkeypatch.setattr(render_command, "WHOLE_SECONDS", 0.5)  # this 2 s clip now goes in blocks
+    assert cli_main([*argv, "--output", str(tmp_path / "blocks.wav")]) == 0
+    assert calls == [1]
+    whole = sf.read(str(tmp_path / "whole.wav"), dtype="float32")[0]
+    blocks = sf.read(str(tmp_path / "blocks.wav"), dtype="float32")[0]
+    assert whole.shape == blocks.shape == (2 * SR, 2)
+    np.testing.assert_allclose(blocks, whole, atol=1e-4 * float(np.abs(whole).max()))

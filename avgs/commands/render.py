@@ -51,6 +51,10 @@ def synthesis_of(args: argparse.Namespace) -> SynthesisConfig:
     return SynthesisConfig(method=args.synthesis, phase=args.phase, phase_iterations=args.phase_iterations)
 
 
+WHOLE_SECONDS = 60.0
+"Inputs up to this long render in one piece (twice as fast); longer ones block by block (avgs.render.chunked)."
+
+
 def run(args: argparse.Namespace) -> int:
     from avgs.io.atomic import audio_format, check_output, write_audio
     from avgs.io.audio_input import read_mono
@@ -60,11 +64,18 @@ def run(args: argparse.Namespace) -> int:
     fmt, subtype = audio_format(args.output, "--output")
     renderer = SceneRenderer.load(args.checkpoint, device=args.device, synthesis=synthesis_of(args))
     mono = read_mono(args.input, renderer.sample_rate)
-    out = renderer.render(args.listener, args.yaw, mono, source=args.source)
-    write_audio(args.output, fit_format(out.binaural, subtype, args.output), renderer.sample_rate, fmt, subtype)
+    if len(mono) > WHOLE_SECONDS * renderer.sample_rate:  # in blocks: memory that does not grow with the clip
+        from avgs.render.chunked import render_to_file
+
+        out, n = render_to_file(renderer, args.output, args.listener, args.yaw, mono, source=args.source,
+                                format=fmt, subtype=subtype)
+    else:
+        out = renderer.render(args.listener, args.yaw, mono, source=args.source)
+        n = out.binaural.shape[1]
+        write_audio(args.output, fit_format(out.binaural, subtype, args.output), renderer.sample_rate, fmt, subtype)
     side = "left" if out.theta > 0 else "right" if out.theta < 0 else "ahead"
     how = "; the predicted response of this source position" if renderer.source_aware else ""
-    print(f"wrote {args.output} ({out.binaural.shape[1]} samples, source {abs(out.theta):.0f} deg to the {side}{how})")
+    print(f"wrote {args.output} ({n} samples, source {abs(out.theta):.0f} deg to the {side}{how})")
     return 0
 
 
