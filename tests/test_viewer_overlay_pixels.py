@@ -91,18 +91,47 @@ def median_run(img: np.ndarray) -> float:
     return float(np.median(runs))
 
 
-def test_scale_2_draws_points_and_lines_twice_as_wide(renderer, tmp_path):
-    plotter = pv.Plotter(off_screen=True, window_size=[400, 300])
-    state = ViewerState(renderer.bounds, renderer.source, outline=renderer.outline)
-    view = SceneView(plotter, renderer, state, axes=False, max_points=300)  # points apart from each other
-    view.overlay.SetDraw(False)  # the handles' layer off: the outline's lines alone, then the points alone
-    view._points_actor.SetVisibility(False)
-    lines = [median_run(picture(plotter, tmp_path / f"lines{s}.png", s)) for s in (1, 2)]
-    view._points_actor.SetVisibility(True)
-    plotter.actors["outline"].SetVisibility(False)
-    points = [median_run(picture(plotter, tmp_path / f"points{s}.png", s)) for s in (1, 2)]
+SCALE_PROBE = """
+import json, sys
+from pathlib import Path
+import pyvista as pv, torch
+torch.set_num_threads(1)
+sys.path.insert(0, sys.argv[2])
+from test_viewer_overlay_pixels import DEMO, median_run, picture
+from avgs import SceneRenderer
+from avgs_viewer.scene_view import SceneView
+from avgs_viewer.state import ViewerState
+tmp = Path(sys.argv[1])
+renderer = SceneRenderer.load(DEMO)
+plotter = pv.Plotter(off_screen=True, window_size=[400, 300])
+state = ViewerState(renderer.bounds, renderer.source, outline=renderer.outline)
+view = SceneView(plotter, renderer, state, axes=False, max_points=300)  # points apart from each other
+view.overlay.SetDraw(False)  # the handles' layer off: the outline's lines alone, then the points alone
+view._points_actor.SetVisibility(False)
+lines = [median_run(picture(plotter, tmp / f"lines{s}.png", s)) for s in (1, 2)]
+view._points_actor.SetVisibility(True)
+plotter.actors["outline"].SetVisibility(False)
+points = [median_run(picture(plotter, tmp / f"points{s}.png", s)) for s in (1, 2)]
+print(json.dumps({"lines": lines, "points": points, "width": plotter.actors["outline"].GetProperty().GetLineWidth()}))
+view.close()
+plotter.close()
+"""
+
+
+def test_scale_2_draws_points_and_lines_twice_as_wide(tmp_path):
+    """In a fresh process, as `avgs-viewer --screenshot --scale 2` runs: a process that already holds
+    other OpenGL contexts (the other GUI tests' windows) may draw wide lines differently."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    run = subprocess.run([sys.executable, "-c", SCALE_PROBE, str(tmp_path), str(Path(__file__).parent)],
+                         capture_output=True, text=True, env=env, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    got = json.loads(run.stdout.strip().splitlines()[-1])
+    lines, points = got["lines"], got["points"]
     assert 1.6 <= lines[1] / lines[0] <= 2.5, lines  # without scaled marks: ~1
     assert 1.6 <= points[1] / points[0] <= 2.5, points
-    assert plotter.actors["outline"].GetProperty().GetLineWidth() == 2  # restored after the picture
-    view.close()
-    plotter.close()
+    assert got["width"] == 2  # restored after the picture
