@@ -18,8 +18,17 @@ the pixels at once (screenshots) calls :meth:`SceneCanvas.render_now`.
 
 Sound first: while :attr:`SceneCanvas.hold` says the audio path is making a pose's
 filter (a few ms) or the filter waits for its first audio block, a paint keeps the last
-frame and tries again 2 ms later, for at most :data:`HOLD_MAX_S`: a software-GL render,
+frame and tries again 2 ms later (without asking Qt for a repaint meanwhile: each repaint,
+even one that draws nothing, composes the whole window), for at most :data:`HOLD_MAX_S`: a software-GL render,
 whose threads take every core, never runs between a pose change and its sound.
+
+Input first, during a handle drag (:meth:`SceneCanvas.set_dragging`, from the window's mouse): at
+most one render per :data:`DRAG_FRAME_S`, counted from the end of the last, and a render request
+that comes sooner waits on a timer instead of asking Qt for a repaint. A render cannot be cut
+short, and a mouse event that comes while one runs waits behind it (the release, and with it
+the released pose's sound); so the GUI thread is left free at least as long as a frame interval
+between two renders, and the drag's moves are handled (their poses sent to the audio path)
+as they come, each frame drawing the newest of them.
 """
 
 from __future__ import annotations
@@ -34,6 +43,8 @@ from PySide6 import QtCore
 
 HOLD_MAX_S = 0.1
 "Longest a repaint waits for the audio path (so a drag still draws while filters keep coming)."
+DRAG_FRAME_S = 1 / 30
+"During a handle drag, the least time from the end of one render to the start of the next."
 
 
 class SceneCanvas(QtInteractor):
@@ -62,9 +73,32 @@ class SceneCanvas(QtInteractor):
         self._retry.setSingleShot(True)
         self._retry.setInterval(2)
         self._retry.timeout.connect(self._request)
+        self.dragging = False
+        "A handle is being dragged: renders are spaced by DRAG_FRAME_S (:meth:`set_dragging`)."
+        self._painted_at = -1.0  # perf_counter at the end of the last render
+        self._frame_gate = QtCore.QTimer(self)
+        self._frame_gate.setSingleShot(True)
+        self._frame_gate.setTimerType(QtCore.Qt.TimerType.PreciseTimer)
+        self._frame_gate.timeout.connect(self._request)
+
+    def set_dragging(self, dragging: bool) -> None:
+        """A handle drag starts (renders spaced by DRAG_FRAME_S) or ends (a waiting render goes now)."""
+        self.dragging = bool(dragging)
+        if not dragging and self._frame_gate.isActive():
+            self._frame_gate.stop()
+            self.update()
 
     def _request(self) -> None:
-        """Ask Qt for a repaint (coalesced); the paint itself waits for the audio path (:meth:`_waiting`)."""
+        """Ask Qt for a repaint (coalesced): during a drag not before DRAG_FRAME_S after the last
+        render, and not while the audio path is busy (:meth:`_waiting`, checked again at the paint)."""
+        if getattr(self, "dragging", False):
+            wait = self._painted_at + DRAG_FRAME_S - time.perf_counter()
+            if wait > 0:
+                if not self._frame_gate.isActive():
+                    self._frame_gate.start(max(1, int(round(wait * 1e3))))
+                return
+        if self._waiting():  # not even a repaint that draws nothing: Qt composes the window for each
+            return
         self.update()
 
     def _waiting(self) -> bool:
@@ -76,10 +110,9 @@ class SceneCanvas(QtInteractor):
         now = time.perf_counter()
         if self._held_since is None:
             self._held_since = now
-        if now - self._held_since >= HOLD_MAX_S:
-            self._held_since = None
+        if now - self._held_since >= HOLD_MAX_S:  # waited long enough: paint (the paint starts the clock again)
             return False
-        retry.start()  # paint again in 2 ms
+        retry.start()  # ask again in 2 ms
         return True
 
     def render(self) -> None:
@@ -105,6 +138,7 @@ class SceneCanvas(QtInteractor):
     def close(self) -> None:
         self.hold = None
         self._retry.stop()
+        self._frame_gate.stop()
         iren, self._vtk_iren = self._vtk_iren, None
         if iren is not None:  # VTK holds the bound method: it would pin the widget after close
             iren.RemoveObserver(self._render_observer)
@@ -124,6 +158,7 @@ class SceneCanvas(QtInteractor):
         finally:
             iren.EnableRenderOff()
         t1 = time.perf_counter()
+        self._painted_at, self._held_since = t1, None
         self.frames += 1
         self.frame_times.append(t1)
         self.paint_seconds.append(t1 - t0)

@@ -8,7 +8,10 @@ into the :class:`~avgs_viewer.state.ViewerState`, which clamps it to the scene b
 A press on a handle the state keeps fixed (the source of a one-source scene) is taken, so
 the camera does not orbit instead, but moves nothing: the state says why (``refused``).
 The camera is reached only through a :class:`Projector`, so the logic is tested with a
-plain orthographic camera and used with VTK's in the window.
+plain orthographic camera and used with VTK's in the window. The camera does not move during a
+handle drag, so the press fits the map from display pixels to the handle's plane once
+(:class:`~avgs_viewer.pointer.PlaneMap`, from four of the camera's rays) and each move is a
+3x3 product: no VTK call between a mouse event and its pose.
 """
 
 from __future__ import annotations
@@ -93,6 +96,7 @@ class DragController:
         "A fixed handle pressed on: the press, its moves and its release are taken, and move nothing."
         self._offset = np.zeros(3)  # handle - hit point at press, so the handle does not jump
         self._height = 0.0
+        self._plane = None  # PlaneMap of the drag in progress: display (x, y) -> (x, y) on its plane
 
     def _position(self, name: str) -> np.ndarray:
         return self.state.listener if name == "listener" else self.state.source
@@ -114,6 +118,7 @@ class DragController:
             return False
         self._offset = handles[name] - hit
         self._offset[2] = 0.0
+        self._plane = self._fit_plane(proj, x, y, self._height)
         self.dragging = name
         self.state.set_interacting(True)
         return True
@@ -124,7 +129,11 @@ class DragController:
             return True
         if self.dragging is None:
             return False
-        hit = ray_plane_z(*self._projector().ray(x, y), self._height)
+        if self._plane is not None:
+            flat = self._plane(x, y)
+            hit = None if flat is None else np.array([flat[0], flat[1], self._height])
+        else:  # the press could not fit a plane map
+            hit = ray_plane_z(*self._projector().ray(x, y), self._height)
         if hit is None:
             return True
         target = hit + self._offset
@@ -135,24 +144,29 @@ class DragController:
             self.state.set_source(target)
         return True
 
-    def follow_map(self, x: float, y: float, span: float = 40.0) -> PoseAt | None:
-        """For the drag in progress, pressed at (x, y): display (x, y) -> the pose a move there
-        makes, computed without the camera or the state changing (any thread; see
-        :mod:`avgs_viewer.pointer`). None when nothing is dragged or the camera looks along the plane."""
+    @staticmethod
+    def _fit_plane(proj: Projector, x: float, y: float, height: float, span: float = 40.0):
+        """The :class:`~avgs_viewer.pointer.PlaneMap` of ``proj`` onto the plane at ``height``, fitted
+        on four display points around (x, y); None where a ray misses the plane."""
         from .pointer import PlaneMap
 
-        if self.dragging is None:
-            return None
-        proj, height = self._projector(), self._height
         display = np.array([[x - span, y - span], [x + span, y - span], [x + span, y + span], [x - span, y + span]])
         hits = [ray_plane_z(*proj.ray(float(a), float(b)), height) for a, b in display]
         if any(h is None for h in hits):
             return None
         try:
-            plane = PlaneMap.fit(display, np.array([h[:2] for h in hits]))
+            return PlaneMap.fit(display, np.array([h[:2] for h in hits]))
         except ValueError:
             return None
-        name, offset, state = self.dragging, self._offset.copy(), self.state
+
+    def follow_map(self, x: float, y: float) -> PoseAt | None:
+        """For the drag in progress: display (x, y) -> the pose a move there makes, computed
+        without the camera or the state changing (any thread; see :mod:`avgs_viewer.pointer`).
+        None when nothing is dragged or the camera looks along the plane."""
+        plane = self._plane
+        if self.dragging is None or plane is None:
+            return None
+        name, offset, state, height = self.dragging, self._offset.copy(), self.state, self._height
 
         def pose_at(px: float, py: float) -> Pose | None:
             hit = plane(px, py)
@@ -172,6 +186,7 @@ class DragController:
             return False
         self.move(x, y)
         self.dragging = None
+        self._plane = None
         self.state.set_interacting(False)
         return True
 

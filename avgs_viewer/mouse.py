@@ -6,6 +6,13 @@ sphere) and what follows go to the Qt-free :class:`~avgs_viewer.drag.DragControl
 everything else to VTK (the camera). During a drag, on X11, the pointer is read from the X
 server ahead of the GUI thread (:class:`~avgs_viewer.pointer.PointerFollower`) and its poses
 handed straight to :meth:`LiveAudio.request <avgs_viewer.worker.LiveAudio.request>`.
+
+Everywhere (Wayland, macOS, Windows, or ``AVGS_VIEWER_NO_POINTER=1``) each Qt move is handled
+before anything is drawn: the drag maps it onto the handle's plane without VTK (the plane map
+fitted at the press), the state's pose event hands the pose to the audio path, and the view only
+asks for a repaint, which the canvas spaces by a frame interval while the drag lasts
+(:meth:`SceneCanvas.set_dragging <avgs_viewer.canvas.SceneCanvas.set_dragging>`), so the GUI
+thread is free for the next move and the release more of the time.
 """
 
 from __future__ import annotations
@@ -45,6 +52,7 @@ class ViewMouse:
             if event.button() == QtCore.Qt.MouseButton.LeftButton:
                 grabbed = drag.press(x, y)
                 if grabbed and drag.dragging is not None:
+                    plotter.set_dragging(True)
                     self._follow_pointer(x, y, drag, live)
                 return grabbed
         elif kind == QtCore.QEvent.Type.MouseMove:
@@ -55,6 +63,7 @@ class ViewMouse:
             taken = drag.release(x, y)
             if live is not None:
                 live.follow(False)  # the state's pose, unless the follower already asked for it
+            plotter.set_dragging(False)  # the release's frame is drawn now, after its pose went
             return taken
         return None
 
@@ -92,6 +101,7 @@ class ViewMouse:
 
     def stop(self) -> None:
         """Stop following the pointer (the scene goes)."""
+        self.plotter.set_dragging(False)
         if self.follower:
             self.follower.stop()
 
