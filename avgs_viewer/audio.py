@@ -33,6 +33,8 @@ from typing import Callable
 
 import numpy as np
 
+from .voices import Voices
+
 SILENCE_DB = -120.0
 ONCE_PEAK = 0.9
 "A signal played once (:meth:`StreamEngine.play_once`) peaks at most here (about -1 dB full scale)."
@@ -231,6 +233,33 @@ class StreamEngine:
         self._bypass_mix = 0.0  # how much of the block out was the dry clip, at its end (0 .. 1)
         self._dry_gain = 1.0  # the dry clip at target_db dB RMS
         self._peaks = np.zeros(2, dtype=np.float32)  # [2] each ear's peak |sample| since take_peaks
+        self.voices = Voices(self.block)  # the other sources, added to the first's block (set_voice)
+        self.source_gain = 1.0
+        "The first source's gain (several sources: :mod:`avgs_viewer.sources`), ramped over one block."
+        self._source_gain = 1.0
+
+    # -- other sources (any thread)
+    def set_voice(self, key: int, clip: np.ndarray | None = None, gain: float | None = None) -> None:
+        """Another source ``key`` (:mod:`avgs_viewer.voices`): its seamless loop [T] (from its start) and gain."""
+        with self._lock:
+            self.voices.set(key, clip, gain)
+
+    def set_voice_filter(self, key: int, impulse: np.ndarray) -> None:
+        """Source ``key``'s filter [2, L], from the next block on (crossfaded over it)."""
+        h = _binaural(impulse, "binaural filter", "L", "taps")
+        with self._lock:
+            self.voices[key].set_filter(h)
+
+    def remove_voice(self, key: int) -> None:
+        """Source ``key`` fades out over the next block."""
+        with self._lock:
+            self.voices.remove(key)
+
+    @property
+    def clip_position(self) -> int:
+        """The sample of the looped clip the next block out starts at."""
+        with self._lock:
+            return self._fed_from[0][1] if self._fed_from else self._pos
 
     def take_peaks(self) -> tuple[float, float]:
         """Each ear's largest |sample| out since the last call (before the limit at 1.0: a value
@@ -461,6 +490,16 @@ class StreamEngine:
             self.loop_tag = None
         self._loop_mix = target
 
+    def _mix_sources(self, y: np.ndarray) -> None:
+        """The first source's block ``y [2, block]`` at its gain plus the other sources' blocks, in place. Under the lock."""
+        gain = float(self.source_gain)
+        if gain != self._source_gain:
+            y *= np.linspace(self._source_gain, gain, self.block + 1, dtype=np.float32)[1:]
+        elif gain != 1.0:
+            y *= np.float32(gain)
+        self._source_gain = gain
+        self.voices.mix(y)
+
     def _mix_dry(self, y: np.ndarray, clip: np.ndarray, pos: int, makeup: float) -> None:
         """Crossfade the dry clip from ``pos`` (both ears, at its own gain) into or out of the block
         ``y [2, block]``, in place. Under the lock."""
@@ -494,6 +533,8 @@ class StreamEngine:
             y, where = self._convolved()  # [2, n]
             if self._loop is not None or self._loop_mix > 0.0:
                 self._mix_loop(y, *where)
+            if self.source_gain != 1.0 or self._source_gain != 1.0 or len(self.voices):
+                self._mix_sources(y)
             makeup = self.makeup_gain or 1.0
             if self.bypass or self._bypass_mix > 0.0:
                 self._mix_dry(y, where[0], where[1], makeup)

@@ -216,6 +216,8 @@ class PropagationView:
         self._mesh: pv.ImageData | None = None
         self._shown_kind: str | None = None
         self._lock = threading.Lock()
+        self.all_sources: Callable[[], tuple] | None = None
+        "Set: the map of all sources, ``((position, gain), ...)`` from it (:mod:`avgs_viewer.sources_map`)."
         gate = None if audio_busy is None else (lambda: not audio_busy())
         self.worker = MapWorker(self._compute, self._partial, self._failed, gate)
         ev = state.events
@@ -260,8 +262,11 @@ class PropagationView:
 
         self.worker.cancel()
         key = self._key = self._pose_key()
-        source, yaw, z = key
-        pmap = compute_map(self.scene, source=np.array(source), yaw=yaw, z=z, size=self.size, workers=MAP_WORKERS)
+        if len(key) == 4:  # all sources
+            pmap = list(self._compute(key, lambda: False))[-1]
+        else:
+            source, yaw, z = key
+            pmap = compute_map(self.scene, source=np.array(source), yaw=yaw, z=z, size=self.size, workers=MAP_WORKERS)
         self.latest, self.latest_key = pmap, key
         if self.mode is not MapMode.OFF:
             self._draw(pmap)
@@ -284,16 +289,40 @@ class PropagationView:
         self.worker.close()
 
     # ------------------------------------------------------------------ computing (worker thread)
+    def set_all_sources(self, sources: Callable[[], tuple] | None) -> None:
+        """The map of every source from ``sources()`` (``((position, gain), ...)``), or (None) of the state's."""
+        self.all_sources = sources
+        if self.mode is not MapMode.OFF:
+            self.request()
+
     def _pose_key(self):
         s = self.state
-        return tuple(float(v) for v in s.source), float(s.yaw), float(s.listener[2])
+        key = tuple(float(v) for v in s.source), float(s.yaw), float(s.listener[2])
+        every = () if self.all_sources is None else self.all_sources()
+        if len(every) > 1:
+            return (*key, tuple((tuple(float(v) for v in p), float(g)) for p, g in every))
+        return key
 
     def _compute(self, request, cancelled):
         from avgs.render.propagation_map import propagation_map
 
+        if len(request) == 4:  # all sources: each map whole, then their summed powers
+            from avgs.render.propagation_map import compute_map
+
+            from .sources_map import sum_maps
+
+            _, yaw, z, every = request
+            maps = []
+            for position, _gain in every:
+                maps.append(compute_map(self.scene, source=np.array(position), yaw=yaw, z=z, size=self.size,
+                                        batch=MAP_BATCH, cancel=cancelled, workers=MAP_WORKERS))
+                if cancelled():
+                    return
+            yield sum_maps(maps, [g for _, g in every])
+            return
         source, yaw, z = request
-        return propagation_map(self.scene, source=np.array(source), yaw=yaw, z=z, size=self.size, batch=MAP_BATCH,
-                               cancel=cancelled, workers=MAP_WORKERS)
+        yield from propagation_map(self.scene, source=np.array(source), yaw=yaw, z=z, size=self.size, batch=MAP_BATCH,
+                                   cancel=cancelled, workers=MAP_WORKERS)
 
     def _partial(self, seq: int, request, pmap) -> None:
         self._post(lambda: self._apply(seq, request, pmap))

@@ -529,3 +529,21 @@ class SceneView:
         """The audio points' size on screen, pixels."""
         self.point_size = float(size)
         self.set_fast(self.state.interacting)
+
+    def show_sources(self, positions) -> None:
+        """A yellow sphere at each of ``positions`` [K, 3]: the sources other than the selected one
+        (which is the ringed handle a drag moves; :mod:`avgs_viewer.sources`)."""
+        if self.overlay is None:
+            return
+        for actor in getattr(self, "_other_sources", []):
+            self.overlay.RemoveActor(actor)
+        self._other_sources = []
+        for p in np.asarray(positions, dtype=np.float64).reshape(-1, 3):
+            actor = pv.Actor(mapper=pv.DataSetMapper(pv.Sphere(radius=self.handle_radius, center=tuple(p),
+                                                               theta_resolution=24, phi_resolution=24)))
+            actor.prop.color = colors.SOURCE_COLOUR
+            actor.prop.interpolation = "phong"
+            actor.SetPickable(False)
+            self.overlay.AddActor(actor)
+            self._other_sources.append(actor)
+        self.plotter.render()

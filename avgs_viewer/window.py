@@ -43,6 +43,8 @@ from .navigation import Navigation
 from .propagation_view import MapControls
 from .response_view import ResponsePanel
 from .scene_view import SceneView
+from .sources import Sources
+from .sources_panel import ONE_SOURCE_REASON, SourcesPanel
 from .state import ViewerState
 from .trained_scene import TrainedScene
 from .undo import PoseHistory
@@ -88,6 +90,9 @@ class MainWindow(QtWidgets.QMainWindow):
         self.panel = ControlPanel()
         self.map_controls = MapControls(self)  # propagation map toggle (panel) and listener-view inset
         self.panel.layout().insertWidget(self.panel.layout().count() - 1, self.map_controls.box)
+        self.sources_panel = SourcesPanel(lambda: file_dialogs.ask_clip(self))  # several sources (source-aware)
+        self.panel.layout().insertWidget(self.panel.layout().count() - 1, self.sources_panel.box)
+        self.sources: Sources | None = None
         self.response = ResponsePanel(key_text=help_key("play_response").keys[0])
         self.view_split = QtWidgets.QSplitter(QtCore.Qt.Orientation.Vertical)  # the 3D view over the response
         self.view_split.addWidget(self.plotter)
@@ -415,6 +420,9 @@ class MainWindow(QtWidgets.QMainWindow):
         # LiveAudio subscribes to the state's pose event; the view's handlers before it only ask
         # for a repaint (SceneCanvas), so a move reaches the audio path before anything is drawn.
         self.audio_path.start(renderer, state, view, clip)
+        self.sources = Sources(state.source, clip, can_add=renderer.source_aware, why_not=ONE_SOURCE_REASON)
+        self.sources_panel.bind(self.sources, state, view, self.live, self.map_controls,
+                                lambda path: self.audio_path.read_clip(path, renderer.sample_rate))
         self.history.bind(state)
         self.audition.scene_changed()
         self.engine.bypass = self.audition.bypass_action.isChecked()
@@ -430,6 +438,7 @@ class MainWindow(QtWidgets.QMainWindow):
     def _teardown_scene(self) -> None:
         self.map_controls.teardown()
         self.mouse.stop()
+        self.sources_panel.unbind()
         self.audio_path.stop()
         if self.view is not None:
             self.view.close()

@@ -26,6 +26,7 @@ import numpy as np
 from .audio import StreamEngine, filter_levels, make_seamless_loop
 from .newest import RenderWorker
 from .refine import SETTLE_SECONDS, LoopRefiner, Refined, refines
+from .sources import Sources
 from .state import Pose, ViewerState
 from .trained_scene import TrainedScene
 
@@ -46,9 +47,10 @@ def same_pose(a: Pose | None, b: Pose | None, tolerance: float = 1e-6) -> bool:
 class PoseRequest:
     """One filter to compute: a pose, its number (the engine's tag) and when it was asked for."""
 
-    pose: Pose
+    pose: Pose  # the first source's (several sources: :mod:`avgs_viewer.sources`)
     seq: int
     submitted_at: float
+    voices: tuple = ()  # ((source id, (x, y, z)), ...) the other sources, each its own filter
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,7 @@ class Heard:
     result: RenderResult  # SceneRenderer.binaural_filter's: impulse [2, L] float32, vicinity sets, gains
     levels: tuple[float, float, float]  # (left dB, right dB, left - right dB)
     ready_at: float  # perf_counter when the engine was handed the filter
+    voices: tuple = ()  # ((source id, RenderResult), ...) the other sources' filters, handed to the engine with it
 
 
 def pose_filter(renderer: TrainedScene, pose: Pose) -> RenderResult:
@@ -103,6 +106,10 @@ class LiveAudio:
         self.refined: Refined | None = None
         "The newest pose rendered in full and handed to the engine (None before the first)."
         self._on_refined = on_refined
+        self.sources: Sources | None = None  # several sources (attach_sources); None: the state's one
+        self._source_clip: np.ndarray | None = None  # the first source's clip the engine loops
+        self._voiced: dict[int, tuple] = {}  # source id -> (its clip, gain) the engine has
+        self._voice_results: tuple = ()  # the other sources' filters of the request just rendered (worker thread)
         engine.set_clip(self._as_loop(clip))
         self.worker: RenderWorker[PoseRequest, RenderResult] = RenderWorker(
             self._render, self._deliver, self._fail, name="avgs-filter")
@@ -154,14 +161,56 @@ class LiveAudio:
         """Loop another mono clip [T] (already at the renderer's sample rate): crossfaded in at the
         next block, through the same filter; the levels are measured again."""
         self.engine.set_clip(self._as_loop(clip))
+        if self.sources is not None:  # the first source's clip
+            self.sources.items[0].clip = self._source_clip = np.asarray(clip, dtype=np.float32)
         self.request()
+
+    # ------------------------------------------------------------------ several sources
+    def attach_sources(self, sources: Sources) -> None:
+        """Play every source of ``sources`` (the first through the engine's own path, the others as
+        its voices), each its clip through its own filter at its gain; follows their changes."""
+        self.sources = sources
+        self._source_clip = sources.items[0].clip
+        sources.changed.append(self._sources_changed)  # (a move of the selected source is a pose event)
+        self._sources_changed()
+
+    def _sources_changed(self) -> None:
+        """The engine's sources made to match the list (clips, gains, voices), then every filter anew."""
+        sources, engine = self.sources, self.engine
+        first = sources.items[0]
+        if first.clip is not self._source_clip:  # a clip set, or the first source removed
+            self._source_clip = first.clip
+            engine.set_clip(self._as_loop(first.clip))
+        engine.source_gain = first.gain
+        others = {s.id: s for s in sources.items[1:]}
+        for key in [k for k in self._voiced if k not in others]:
+            engine.remove_voice(key)
+            del self._voiced[key]
+        for key, s in others.items():
+            had = self._voiced.get(key)
+            new_clip = had is None or had[0] is not s.clip
+            engine.set_voice(key, self._as_loop(s.clip) if new_clip else None, s.gain)
+            self._voiced[key] = (s.clip, s.gain)
+        self.request()
+
+    def _split(self, pose: Pose) -> tuple[Pose, tuple]:
+        """(the first source's pose, the other sources' (id, position)) of the state's ``pose``,
+        whose source is the selected one."""
+        sources = self.sources
+        if sources is None or len(sources) == 1:
+            return pose, ()
+        where = [tuple(float(v) for v in s.position) for s in sources.items]
+        where[sources.selected] = tuple(pose.source)
+        first = Pose(pose.listener, pose.yaw, where[0])
+        return first, tuple((s.id, p) for s, p in zip(sources.items[1:], where[1:]))
 
     def request(self, pose: Pose | None = None) -> int:
         """Compute the filter of ``pose`` (default: the state's current pose; called on every pose
         change); its number. Any thread."""
         with self._lock:  # numbers follow submission order
             pose = self.state.pose if pose is None else pose
-            self.seq = self.worker.submit(PoseRequest(pose, self.worker.submitted + 1, time.perf_counter()))
+            first, voices = self._split(pose)
+            self.seq = self.worker.submit(PoseRequest(first, self.worker.submitted + 1, time.perf_counter(), voices))
             self._requested = pose
             return self.seq
 
@@ -180,14 +229,21 @@ class LiveAudio:
         self.request(pose)
 
     def _render(self, request: PoseRequest) -> RenderResult:
-        return pose_filter(self.renderer, request.pose)
+        pose = request.pose  # the other sources' filters first, kept for _deliver (the same thread)
+        self._voice_results = tuple((key, self.renderer.binaural_filter(pose.listener, pose.yaw, source=where))
+                                    for key, where in request.voices)
+        return pose_filter(self.renderer, pose)
 
     def _deliver(self, seq: int, request: PoseRequest, result: RenderResult) -> None:
         clip = self.engine.clip
+        voices, self._voice_results = self._voice_results, ()
+        for key, res in voices:  # taken at the same block as the first source's
+            if key in self.engine.voices:
+                self.engine.set_voice_filter(key, res.impulse)
         self.engine.set_filter(result.impulse, tag=request.seq)
         ready = time.perf_counter()
         levels = filter_levels(result.impulse, self.engine.spectrum, self.engine.makeup_gain or 1.0)
-        heard = Heard(request, result, levels, ready)
+        heard = Heard(request, result, levels, ready, voices)
         self.heard = heard
         if self.refiner is not None:  # (after self.heard: the loop is taken only for the pose heard)
             self.refiner.submit(request.seq, request.pose, clip, ready)
@@ -208,6 +264,8 @@ class LiveAudio:
             self._on_error(request, exc)
 
     def close(self) -> None:
+        if self.sources is not None:
+            self.sources.changed.remove(self._sources_changed)
         self.state.events.pose.disconnect(self._pose_changed)
         self.worker.close()
         if self.refiner is not None:
