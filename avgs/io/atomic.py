@@ -209,7 +209,7 @@ class _GuardedFile:
 
 
 @contextmanager
-def _guarded_open(tmp: Path) -> Iterator[_GuardedFile]:
+def guarded_open(tmp: Path) -> Iterator[_GuardedFile]:
     """``tmp`` opened for binary writing as a :class:`_GuardedFile`; a failed write (kept by the
     guard) raises its ``OSError`` whatever exception the writer made of it, and so do flushing,
     syncing and closing; the data reach the disk (``fsync``) before the block ends."""
@@ -252,7 +252,7 @@ def write_audio(path: str | Path, audio, sample_rate: int, format: str = "WAV", 
     import soundfile as sf
 
     audio = np.asarray(audio, dtype=np.float32)  # [C, T]
-    with atomic_path(path, make_parents=make_parents) as tmp, _guarded_open(tmp) as out:
+    with atomic_path(path, make_parents=make_parents) as tmp, guarded_open(tmp) as out:
         with sf.SoundFile(out, "w", int(sample_rate), audio.shape[0], subtype=subtype, format=format) as f:
             for i in range(0, audio.shape[1], 1 << 18):  # in pieces: no interleaved copy of a long signal
                 f.write(np.ascontiguousarray(audio[:, i : i + (1 << 18)].T))
@@ -269,6 +269,6 @@ def torch_save(obj, path: str | Path) -> Path:
     """``torch.save`` to ``path`` atomically (flushed to disk before the rename)."""
     import torch
 
-    with atomic_path(path) as tmp, _guarded_open(tmp) as out:
+    with atomic_path(path) as tmp, guarded_open(tmp) as out:
         torch.save(obj, out)
     return Path(path)

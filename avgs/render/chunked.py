@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from avgs.render.tasks import HEADROOM_DB, HeadroomLimited, peak
+from avgs.render.tasks import HEADROOM_DB, HeadroomLimited, peak, unit_input
 
 BLOCK = 1 << 16
 "Input samples fed to the stream at a time (3 s at 22050 Hz)."
@@ -33,25 +33,12 @@ FLOAT_SUBTYPES = ("FLOAT", "DOUBLE")
 "Subtypes that hold samples beyond full scale (nothing else is scaled down to fit)."
 
 
-def _unit_input(mono) -> tuple[np.ndarray, float]:
-    """``mono`` as a 1-D float32 array and its peak (1 for silence), checked as ``render`` checks it."""
-    x = np.asarray(mono, dtype=np.float32)
-    if x.ndim == 2 and 1 in x.shape:
-        x = x.reshape(-1)
-    if x.ndim != 1 or x.size == 0:
-        raise ValueError(f"mono must be a 1-D signal with at least one sample, got shape {x.shape}")
-    top = peak(x)
-    if not math.isfinite(top):
-        raise ValueError("mono holds NaN or Inf samples")
-    return x, (top if top > 0 else 1.0)
-
-
 def render_blocks(renderer, listener, yaw: float, mono, source=None, gain: float = 1.0,
                   block: int = BLOCK) -> Iterator[np.ndarray]:
     """The render of ``mono`` at this pose as blocks ``[2, n]`` float32 (their concatenation is
     ``renderer.render(listener, yaw, mono, source).binaural * gain`` to float rounding, without
     ``render``'s headroom limit: the caller applies it through ``gain``)."""
-    x, scale = _unit_input(mono)
+    x, scale = unit_input(mono)
     try:
         stream = renderer.stream(listener, yaw, source)
     except ValueError:  # a synthesis that needs the whole signal (or a pose render refuses as well)
@@ -79,17 +66,17 @@ def render_to_file(renderer, path, listener, yaw: float, mono, source=None, form
     point or lossy samples (a warning says by how much)."""
     import soundfile as sf
 
-    from avgs.io.atomic import _guarded_open, atomic_path
+    from avgs.io.atomic import guarded_open, atomic_path
 
-    x, scale = _unit_input(mono)
+    x, scale = unit_input(mono)
     if source is not None and not renderer.source_aware:
-        renderer._warn_one_source(source)
+        renderer.warn_one_source(source)
     pose = renderer.masks(listener, yaw, source)  # the pose's result (theta, positions, gains)
     limit = 10.0 ** (HEADROOM_DB / 20.0)
 
     def write(tmp: Path, gain: float) -> tuple[float, int]:
         top, n = 0.0, 0
-        with _guarded_open(tmp) as out, sf.SoundFile(out, "w", int(renderer.sample_rate), 2, subtype=subtype, format=format) as f:
+        with guarded_open(tmp) as out, sf.SoundFile(out, "w", int(renderer.sample_rate), 2, subtype=subtype, format=format) as f:
             for y in render_blocks(renderer, listener, yaw, x, source, gain, block):
                 top = max(top, peak(y))
                 n += y.shape[1]

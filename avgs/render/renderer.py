@@ -50,7 +50,7 @@ from avgs.config import SynthesisConfig
 from avgs.data.frame import SceneFrame, signed_direction
 from avgs.gaussians.sh import sh_to_rgb
 from avgs.io.checkpoint import config_of, load_checkpoint, stft_of
-from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, TaskModel, peak  # noqa: F401
+from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, TaskModel, peak, unit_input  # noqa: F401
 from avgs.tasks import Task, task_of
 
 
@@ -371,18 +371,10 @@ class SceneRenderer:
         of the output). ``source`` (world) moves the source; a one-source model says once
         (:class:`OneSourceModel`) that it hears only the new direction.
         """
-        x = np.asarray(mono, dtype=np.float32)
-        if x.ndim == 2 and 1 in x.shape:
-            x = x.reshape(-1)
-        if x.ndim != 1 or x.size == 0:
-            raise ValueError(f"mono must be a 1-D signal with at least one sample, got shape {x.shape}")
-        top_in = peak(x)
-        if not math.isfinite(top_in):
-            raise ValueError("mono holds NaN or Inf samples")
-        scale = top_in if top_in > 0 else 1.0  # processed at unit peak: no float32 under- or overflow
+        x, scale = unit_input(mono)  # processed at unit peak: no float32 under- or overflow
         synthesis = self.synthesis if synthesis is None else synthesis
         if source is not None and not self.source_aware:
-            self._warn_one_source(source)
+            self.warn_one_source(source)
         with self._lock, torch.inference_mode():
             pose, r = self._response(listener, yaw, source)
             y, mags, top = self.task_model.render(r, x / np.float32(scale), synthesis, magnitudes)
@@ -398,7 +390,7 @@ class SceneRenderer:
             mags = np.ascontiguousarray((mags * scale).astype(np.float32))
         return self._result(pose, r, binaural=y, magnitudes=mags)
 
-    def _warn_one_source(self, source) -> None:
+    def warn_one_source(self, source) -> None:
         """Say once per renderer that a one-source model hears a moved source only by its direction."""
         if self._warned_one_source:
             return

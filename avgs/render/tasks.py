@@ -123,6 +123,21 @@ class TaskModel(Protocol):
         """Binaural responses ``[N, 2, L]`` float32 at normalised positions, no clamping or limit."""
 
 
+def unit_input(mono) -> tuple[np.ndarray, float]:
+    """``mono`` as a 1-D float32 array and the scale it is rendered at (its peak; 1 for silence):
+    a render is processed at unit peak, so that no float32 under- or overflows. ValueError for
+    anything but a non-empty 1-D signal, or NaN / Inf samples."""
+    x = np.asarray(mono, dtype=np.float32)
+    if x.ndim == 2 and 1 in x.shape:
+        x = x.reshape(-1)
+    if x.ndim != 1 or x.size == 0:
+        raise ValueError(f"mono must be a 1-D signal with at least one sample, got shape {x.shape}")
+    top = peak(x)
+    if not math.isfinite(top):
+        raise ValueError("mono holds NaN or Inf samples")
+    return x, (top if top > 0 else 1.0)
+
+
 def peak(a: np.ndarray, chunk: int = 1 << 20) -> float:
     """max |a| (NaN if any sample is NaN or Inf), in chunks: no temporary as large as ``a``."""
     flat = a.reshape(-1) if a.flags.c_contiguous else a.ravel()
