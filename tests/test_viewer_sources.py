@@ -161,3 +161,44 @@ def test_the_map_of_all_sources_is_the_sum_of_their_powers():
     np.testing.assert_allclose(every.ild, 10 * np.log10(left / right), atol=1e-4)
     one = singles[0]
     assert np.all(10 ** (every.level / 10) > 10 ** (one.level / 10))  # louder everywhere than one source
+
+
+def test_removing_the_first_source_leaves_the_seconds_sound():
+    """No window: the engine pulled by hand. Two sources, the first removed: the second's clip now
+    plays through the engine's own path, at its gain, through its filter, alone."""
+    from avgs.render.renderer import SceneRenderer
+    from avgs_viewer.audio import StreamEngine, make_seamless_loop
+    from avgs_viewer.sources import Sources
+    from avgs_viewer.state import ViewerState
+    from avgs_viewer.worker import LiveAudio
+
+    r = SceneRenderer.load(DEMO)
+    state = ViewerState(r.bounds, (5.8, 2.9, 1.5), listener=(6.8, 1.6, 1.5), yaw=90.0)
+    engine = StreamEngine(r.sample_rate)
+    engine.volume = 0.3
+    rng = np.random.default_rng(2)
+    a, b = (0.05 * rng.standard_normal(r.sample_rate).astype(np.float32) for _ in range(2))
+    live = LiveAudio(r, state, engine, a, settle=None)
+    try:
+        sources = Sources(state.source, a)
+        sources.follow(state)
+        live.attach_sources(sources)
+        sources.add((3.0, 4.0, 1.5), clip=b, gain=0.7)
+        assert live.worker.wait_idle(30) and len(engine.voices) == 1
+        for _ in range(20):
+            engine.render_block()
+        sources.remove(0)
+        assert len(sources) == 1 and sources.items[0].gain == 0.7
+        np.testing.assert_allclose(state.source, (3.0, 4.0, 1.5))  # the one left is the state's source
+        assert live.worker.wait_idle(30)
+        h = r.binaural_filter(state.listener, state.yaw, source=state.source).impulse
+        loop = make_seamless_loop(b, int(round(0.05 * r.sample_rate)))
+        for _ in range((len(loop) + h.shape[1]) // engine.block + 4):  # a whole loop and filter through
+            engine.render_block()
+        assert len(engine.voices) == 0 and engine.live_tag == live.seq
+        pos, n = engine.clip_position, 40 * engine.block
+        got = np.concatenate([engine.render_block() for _ in range(40)]).T  # [2, n]
+        want = 0.7 * engine.volume * engine.makeup_gain * circular(loop, h)[:, (pos + np.arange(n)) % len(loop)]
+        assert np.abs(got - want).max() < 1e-3 * np.abs(want).max()
+    finally:
+        live.close()
