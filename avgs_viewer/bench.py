@@ -228,6 +228,7 @@ def _display():
 def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, idle_s: float = 5.0, orbit_s: float = 3.0) -> dict:
     """Open the window on ``scene_path``, drive it with real X events, write ``out`` (Markdown); the numbers."""
     import json
+    import os
     from pathlib import Path
 
     import torch
@@ -303,7 +304,9 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, idle_s: float = 5.0
         + ("; a settled pose plays its loop rendered in full" if setup["settle_s"] is not None else "") + "  ",
         "Drags: " + ("followed through the X pointer ahead of Qt's event queue (avgs_viewer/pointer.py; "
                      "`AVGS_VIEWER_NO_POINTER=1` measures without)" if r["pointer_follow"]
-                     else "through Qt's mouse events only (no X pointer to follow)"),
+                     else "through Qt's mouse events only, as on Wayland, macOS and Windows ("
+                     + ("`AVGS_VIEWER_NO_POINTER=1`" if os.environ.get("AVGS_VIEWER_NO_POINTER") else "no X pointer")
+                     + "; the press's plane map per move, renders spaced by a frame interval: avgs_viewer/canvas.py)"),
         "",
         f"real-event drag to audio: median {lat['median_ms']:.1f} ms, p95 {lat['p95_ms']:.1f} ms",
         f"idle CPU: {r['idle_cpu_playing']:.1f} % of one core",
