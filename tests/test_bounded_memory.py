@@ -200,7 +200,7 @@ def render_growth(ckpt, seconds: float, method: str, tmp_path) -> int:
     return int(out.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("task, method", [("rir", "filter"), ("binaural", "spectrogram")])
+@pytest.mark.parametrize("task, method", [("rir", "filter"), pytest.param("binaural", "spectrogram", marks=pytest.mark.slow)])
 @pytest.mark.skipif(not Path("/proc/self/clear_refs").exists(), reason="needs Linux's resettable peak RSS")
 def test_render_memory_does_not_grow_with_the_clip(one_source_ckpt, task, method, tmp_path):
     """Peak RSS over the process's level before the render (the clip already in memory), for a

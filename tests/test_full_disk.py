@@ -67,7 +67,8 @@ def render_argv(ckpt, wav, output) -> list:
             "--synthesis", "filter"]
 
 
-@pytest.mark.parametrize("name", ["out.wav", "out.flac", "out.mp3"])
+@pytest.mark.parametrize("name", ["out.wav", pytest.param("out.flac", marks=pytest.mark.slow),
+                                  pytest.param("out.mp3", marks=pytest.mark.slow)])  # the same guard: one in the default suite
 def test_render_past_the_file_size_limit(inputs, tmp_path, name):
     ckpt, wav = inputs
     out = tmp_path / name
@@ -106,6 +107,7 @@ def test_train_whose_checkpoint_cannot_be_written_leaves_no_log(quick_scene, tmp
     assert sorted(tmp_path.iterdir()) == stage1  # no checkpoint, no temporary, no log, no curves
 
 
+@pytest.mark.slow  # the checkpoint variant stays in the default suite
 def test_train_whose_log_cannot_be_written(quick_scene, tmp_path):
     out = tmp_path / "scene.ckpt"
     log = tmp_path / "scene.ckpt.log.jsonl"

@@ -227,6 +227,7 @@ def test_input_shorter_than_one_stft_frame(renderer, source_phase, length, capsy
     assert np.allclose(y, out.binaural, atol=1e-5)  # the default render's
 
 
+@pytest.mark.slow  # 27 s; block renders equal whole ones in the default suite: tests/test_bounded_memory.py
 def test_ten_minutes_streamed_in_blocks_equal_one_shot(renderer):
     x = noise(10 * 60 * SR, seed=9) * 0.3  # 10 min, 13.2 M samples
     one_shot = renderer.render((2.5, 1.5, 1.6), 135.0, x).binaural

@@ -186,6 +186,7 @@ def test_the_lock_outlives_its_holder_while_a_subprocess_it_started_runs(tmp_pat
     child.wait()
 
 
+@pytest.mark.slow  # a lost node is in the default suite (test_a_lost_node_s_run_resumes_on_another)
 def test_a_run_lost_beyond_its_retries_is_failed_with_why_and_keeps_its_checkpoint(cluster, quick_scene, tmp_path,
                                                                                      monkeypatch):
     """The driver's side: a run whose node is lost once more than Ray may place it again ends

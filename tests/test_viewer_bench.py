@@ -33,6 +33,7 @@ def test_the_bench_drives_the_real_window_and_writes_its_report(tmp_path):
     assert "drag end ->" not in text  # the state-driven numbers are gone
 
 
+@pytest.mark.slow  # 15 s; the bench itself is driven in the default suite above
 def test_on_a_one_source_scene_the_bench_times_the_full_render_after_each_release(tmp_path, one_source_ckpt):
     out = tmp_path / "viewer.md"
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
