@@ -251,16 +251,24 @@ def sharpen_direct_sound(y: torch.Tensor, start: torch.Tensor, fs: float) -> tor
     is the response's first peak, and both ears carry exactly the ITD it was given."""
     L = y.shape[-1]
     y = y.double()
-    t = torch.arange(L, dtype=torch.float64)
-    offset = t - start.double()[..., None]  # [B, 2, L] samples from each ear's arrival
+    start = start.double()
+    # Only the samples around the arrivals change: work on that span (the rest of y is returned as it is).
+    lo = max(0, int(math.floor(float(start.min()))) - FADE_SAMPLES - IMPULSE_TAPS)
+    hi = min(L, int(math.ceil(float(start.max()) + IMPULSE_SECONDS * fs)) + IMPULSE_TAPS + 1)
+    if lo >= hi:
+        return y
+    span = y[..., lo:hi]  # [B, 2, S]
+    offset = torch.arange(lo, hi, dtype=torch.float64) - start[..., None]  # [B, 2, S] samples from each ear's arrival
     stretch = ((offset >= -FADE_SAMPLES) & (offset < IMPULSE_SECONDS * fs)).double()
-    energy = (y.square() * stretch).sum(-1)  # [B, 2]
+    energy = (span.square() * stretch).sum(-1)  # [B, 2]
     taper = torch.where(offset.abs() < IMPULSE_TAPS, 0.5 + 0.5 * torch.cos(math.pi * offset / IMPULSE_TAPS),
                         torch.zeros_like(offset))
-    impulse = torch.sinc(offset) * taper  # [B, 2, L]
+    impulse = torch.sinc(offset) * taper  # [B, 2, S]
     norm = impulse.square().sum(-1, keepdim=True).sqrt().clamp_min(1e-12)
     impulse = impulse / norm * (energy * (1.0 - DIFFUSE_SHARE**2)).sqrt()[..., None]
-    return y * (1.0 - stretch * (1.0 - DIFFUSE_SHARE)) + impulse
+    out = y.clone()
+    out[..., lo:hi] = span * (1.0 - stretch * (1.0 - DIFFUSE_SHARE)) + impulse
+    return out
 
 
 def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, phase: str = "griffin-lim",
