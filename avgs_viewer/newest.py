@@ -1,7 +1,9 @@
 """A thread that runs only the newest request: :class:`RenderWorker`.
 
 Requests submitted while one runs overwrite each other; when it is done only the newest
-runs next. The explorer's filter path (:mod:`avgs_viewer.worker`), its full-render path
+runs next. With a spare lane, :meth:`RenderWorker.expedite` starts the newest request at once on a
+second thread instead of behind the one running (the explorer's release of a drag: its pose's
+filter need not wait for a stale move's); a result older than one already delivered is dropped. The explorer's filter path (:mod:`avgs_viewer.worker`), its full-render path
 (:mod:`avgs_viewer.refine`) and the listener's-view inset each run on one. No Qt here.
 """
 
@@ -20,24 +22,40 @@ class RenderWorker(Generic[Request, Result]):
     """Runs ``render(request)`` on one daemon thread, newest request wins.
 
     ``on_result(seq, request, result)`` / ``on_error(seq, request, exc)`` are called on the
-    worker thread; ``seq`` numbers submissions from 1, so a receiver can drop stale ones.
+    worker thread; ``seq`` numbers submissions from 1, and results reach ``on_result`` in that
+    order (one older than a result already delivered is dropped: :attr:`superseded`).
+    ``spare``: a second thread that only :meth:`expedite` uses; ``render`` must then be safe to
+    run on two threads at once.
     """
 
     def __init__(self, render: Callable[[Request], Result], on_result: Callable[[int, Request, Result], None],
-                 on_error: Callable[[int, Request, BaseException], None] | None = None, name: str = "avgs-render"):
+                 on_error: Callable[[int, Request, BaseException], None] | None = None, name: str = "avgs-render",
+                 spare: bool = False):
         self._render = render
         self._on_result = on_result
         self._on_error = on_error
         self._cond = threading.Condition()
+        self._deliver_lock = threading.Lock()  # results in submission order
         self._request: Any = None  # (seq, request: Request) of the newest not yet started, while _has_request
         self._has_request = False
-        self._busy = False
+        self._urgent: Any = None  # (seq, request) handed to the spare lane, until it starts
+        self._running = 0  # lanes rendering now
+        self._delivered = 0  # seq of the newest result delivered
         self._closed = False
         self.submitted = 0
         self.rendered = 0
         self.dropped = 0
+        "Requests overwritten before they started."
+        self.superseded = 0
+        "Results dropped because a newer one was delivered first (a spare lane's)."
+        self.expedited = 0
+        "Requests the spare lane ran."
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
         self._thread.start()
+        self._spare = None
+        if spare:
+            self._spare = threading.Thread(target=self._spare_loop, name=f"{name}-spare", daemon=True)
+            self._spare.start()
 
     def submit(self, request: Request) -> int:
         """Queue ``request``, replacing any not yet started; returns its sequence number."""
@@ -51,10 +69,21 @@ class RenderWorker(Generic[Request, Result]):
             self._cond.notify()
             return self.submitted
 
+    def expedite(self) -> bool:
+        """Start the request waiting behind the one running now on the spare lane (if there is one
+        and it is free); True when it was handed over."""
+        with self._cond:
+            if self._spare is None or not self._has_request or self._running == 0 or self._urgent is not None:
+                return False
+            self._urgent, self._has_request, self._request = self._request, False, None
+            self._cond.notify_all()
+            return True
+
     def wait_idle(self, timeout: float = 10.0) -> bool:
         """Block until nothing is queued or running; False on timeout."""
         with self._cond:
-            return self._cond.wait_for(lambda: not (self._has_request or self._busy), timeout)
+            return self._cond.wait_for(
+                lambda: not (self._has_request or self._running or self._urgent is not None), timeout)
 
     def close(self, timeout: float = 10.0) -> None:
         """Stop after the render in progress (queued requests are dropped)."""
@@ -67,7 +96,7 @@ class RenderWorker(Generic[Request, Result]):
 
     @property
     def alive(self) -> bool:
-        return self._thread.is_alive()
+        return self._thread.is_alive() and (self._spare is None or self._spare.is_alive())
 
     def _loop(self) -> None:
         while True:
@@ -78,16 +107,38 @@ class RenderWorker(Generic[Request, Result]):
                     self._cond.notify_all()
                     return
                 (seq, request), self._has_request = self._request, False
-                self._request, self._busy = None, True
-            try:
-                result = self._render(request)
-            except BaseException as exc:  # reported, never kills the thread
-                if self._on_error is not None:
-                    self._on_error(seq, request, exc)
-            else:
-                self.rendered += 1
-                self._on_result(seq, request, result)
-            finally:
-                with self._cond:
-                    self._busy = False
+                self._request = None
+                self._running += 1
+            self._run(seq, request)
+
+    def _spare_loop(self) -> None:
+        while True:
+            with self._cond:
+                while self._urgent is None and not self._closed:
+                    self._cond.wait()
+                if self._closed:
                     self._cond.notify_all()
+                    return
+                (seq, request), self._urgent = self._urgent, None
+                self._running += 1
+                self.expedited += 1
+            self._run(seq, request)
+
+    def _run(self, seq: int, request: Request) -> None:
+        try:
+            result = self._render(request)
+        except BaseException as exc:  # reported, never kills the thread
+            if self._on_error is not None:
+                self._on_error(seq, request, exc)
+        else:
+            with self._deliver_lock:
+                if seq < self._delivered:
+                    self.superseded += 1
+                else:
+                    self._delivered = seq
+                    self.rendered += 1
+                    self._on_result(seq, request, result)
+        finally:
+            with self._cond:
+                self._running -= 1
+                self._cond.notify_all()

@@ -109,10 +109,10 @@ class LiveAudio:
         self.sources: Sources | None = None  # several sources (attach_sources); None: the state's one
         self._source_clip: np.ndarray | None = None  # the first source's clip the engine loops
         self._voiced: dict[int, tuple] = {}  # source id -> (its clip, gain) the engine has
-        self._voice_results: tuple = ()  # the other sources' filters of the request just rendered (worker thread)
         engine.set_clip(self._as_loop(clip))
-        self.worker: RenderWorker[PoseRequest, RenderResult] = RenderWorker(
-            self._render, self._deliver, self._fail, name="avgs-filter")
+        # A spare lane: a drag's release starts its pose's filter at once, not behind a move's (follow).
+        self.worker: RenderWorker[PoseRequest, tuple[RenderResult, tuple]] = RenderWorker(
+            self._render, self._deliver, self._fail, name="avgs-filter", spare=True)
         self.refiner: LoopRefiner | None = None
         if settle is not None and refines(renderer):
             self.refiner = LoopRefiner(renderer, lambda: self.seq, self._deliver_refined,
@@ -220,23 +220,26 @@ class LiveAudio:
         later) are not requested again. Back to False (the drag's release on the GUI thread),
         the state's pose is requested unless the follower already asked for it."""
         self._following = bool(following)
-        if not following and not same_pose(self.state.pose, self._requested):
-            self.request()
+        if not following:
+            if not same_pose(self.state.pose, self._requested):
+                self.request()
+            self.worker.expedite()  # the released pose starts now, not after the move being computed
 
     def _pose_changed(self, pose: Pose) -> None:
         if self._following or same_pose(pose, self._requested):
             return
         self.request(pose)
 
-    def _render(self, request: PoseRequest) -> RenderResult:
-        pose = request.pose  # the other sources' filters first, kept for _deliver (the same thread)
-        self._voice_results = tuple((key, self.renderer.binaural_filter(pose.listener, pose.yaw, source=where))
-                                    for key, where in request.voices)
-        return pose_filter(self.renderer, pose)
+    def _render(self, request: PoseRequest) -> tuple[RenderResult, tuple]:
+        """The first source's filter and the other sources' ((id, RenderResult), ...); on either lane."""
+        pose = request.pose
+        voices = tuple((key, self.renderer.binaural_filter(pose.listener, pose.yaw, source=where))
+                       for key, where in request.voices)
+        return pose_filter(self.renderer, pose), voices
 
-    def _deliver(self, seq: int, request: PoseRequest, result: RenderResult) -> None:
+    def _deliver(self, seq: int, request: PoseRequest, rendered: tuple[RenderResult, tuple]) -> None:
         clip = self.engine.clip
-        voices, self._voice_results = self._voice_results, ()
+        result, voices = rendered
         for key, res in voices:  # taken at the same block as the first source's
             if key in self.engine.voices:
                 self.engine.set_voice_filter(key, res.impulse)

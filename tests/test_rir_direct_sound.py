@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from avgs.acoustics.interaural import interaural_delay
-from avgs.acoustics.rir_model import FADE_SAMPLES, DirectSound, place_direct_sound, sharpen_direct_sound
+from avgs.acoustics.rir_model import FADE_SAMPLES, DirectSound, fractional_delay, place_direct_sound, sharpen_direct_sound
 from avgs.config import STFT
 from avgs.evaluation import spatial
 from avgs.render.renderer import SceneRenderer
@@ -32,6 +32,22 @@ def test_the_gate_delays_each_ear_and_keeps_the_early_energy():
     for ear in (0, 1):  # the first window's energy is kept (the gate's share given to the next half window)
         assert np.sum(y[ear, : window[ear]] ** 2) == pytest.approx(float(np.sum(h[0, ear, : window[0]].numpy() ** 2)), rel=0.25)
     assert spatial.onset(y) == pytest.approx(start[0], abs=0.5e-3 * fs)
+
+
+def test_fractional_delay_of_known_signals():
+    """A tone delayed by 2.3 samples is the tone 2.3 samples later (away from the ends); a click at the
+    start advanced by 3.5 samples does not wrap around into the end."""
+    L, fs = 4000, 22050.0
+    t = np.arange(L)
+    tone = np.sin(2 * np.pi * 1000.0 * t / fs) * np.hanning(L)
+    y = fractional_delay(torch.from_numpy(tone).float()[None], torch.tensor([2.3]))[0].numpy()
+    want = np.sin(2 * np.pi * 1000.0 * (t - 2.3) / fs) * np.interp(t - 2.3, t, np.hanning(L))
+    assert np.max(np.abs(y[50:-50] - want[50:-50])) < 2e-3
+    click = torch.zeros(2, L)
+    click[:, 0] = 1.0
+    moved = fractional_delay(click, torch.tensor([-3.5, 7.25])).numpy()  # [2, L]
+    assert np.max(np.abs(moved[:, L // 2 :])) < 1e-3  # no wrap-around into the response's end
+    assert np.argmax(np.abs(moved[1])) == 7 and moved[1, 7] == pytest.approx(np.sinc(0.25), abs=1e-3)
 
 
 def test_the_direct_sound_becomes_the_first_peak_with_its_energy_and_itd():

@@ -374,3 +374,56 @@ def test_pointer_follower_reports_moves_then_the_release_and_survives_a_lost_ser
     seen = len(moved)
     time.sleep(0.05)
     assert seen > 0 and len(moved) == seen
+
+
+def test_spare_lane_runs_the_expedited_request_at_once_and_drops_the_stale_result():
+    """A drag's release: request 1 (a move) is being computed when 2 (the release) comes; expedite()
+    starts 2 on the spare lane at once, 2 is delivered while 1 still runs, and 1's late result is dropped."""
+    gate, started = threading.Event(), []
+    results = []
+
+    def render(x):
+        started.append(x)
+        if x == 1:
+            gate.wait(5)
+        return x * 10
+
+    w = RenderWorker(render, lambda seq, req, res: results.append((seq, res)), spare=True)
+    try:
+        w.submit(1)
+        deadline = time.monotonic() + 5
+        while not started and time.monotonic() < deadline:
+            time.sleep(0.001)
+        w.submit(2)
+        assert not w.wait_idle(0.05) and started == [1]  # 2 waits behind 1 ...
+        assert w.expedite()  # ... until the spare lane takes it
+        deadline = time.monotonic() + 5
+        while not results and time.monotonic() < deadline:
+            time.sleep(0.001)
+        assert results == [(2, 20)] and started == [1, 2]
+        gate.set()
+        assert w.wait_idle(5)
+        assert not w.expedite()  # nothing waiting
+    finally:
+        w.close()
+    assert results == [(2, 20)]
+    assert w.superseded == 1 and w.expedited == 1 and w.rendered == 1 and not w.alive
+
+
+def test_binaural_filters_on_two_threads_equal_those_made_one_after_another():
+    """The explorer's two lanes call SceneRenderer.binaural_filter at once: the same filters, bit for bit."""
+    from concurrent.futures import ThreadPoolExecutor
+    from pathlib import Path
+
+    from avgs.render.renderer import SceneRenderer
+
+    r = SceneRenderer.load(Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt")
+    lo, hi = r.bounds
+    rng = np.random.default_rng(3)
+    poses = [(lo + (hi - lo) * rng.uniform(0.2, 0.8, 3), float(rng.uniform(0, 360)), lo + (hi - lo) * rng.uniform(0.2, 0.8, 3))
+             for _ in range(12)]
+    serial = [r.binaural_filter(p, y, source=s).impulse for p, y, s in poses]
+    with ThreadPoolExecutor(2) as pool:
+        parallel = list(pool.map(lambda q: r.binaural_filter(q[0], q[1], source=q[2]).impulse, poses))
+    for a, b in zip(serial, parallel):
+        np.testing.assert_array_equal(a, b)

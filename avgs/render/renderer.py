@@ -312,9 +312,11 @@ class SceneRenderer:
     def source_context(self, source: torch.Tensor):
         """C_S and the source vicinity for ``source`` [3] (normalised), cached until the source moves."""
         key = tuple(source.tolist())
-        if self._source_cache is None or self._source_cache[0] != key:
-            self._source_cache = (key, self.model.source_context(source, self.cache))
-        return self._source_cache[1]
+        cached = self._source_cache  # one read: another thread may replace it meanwhile
+        if cached is None or cached[0] != key:
+            cached = (key, self.model.source_context(source, self.cache))
+            self._source_cache = cached
+        return cached[1]
 
     def response(self, listener, yaw: float, source=None, impulse: bool = False) -> Response:
         """The task model's :class:`~avgs.render.tasks.Response` of a pose (tensors in the model's
@@ -350,8 +352,11 @@ class SceneRenderer:
     def binaural_filter(self, listener, yaw: float, source=None) -> RenderResult:
         """The pose as a filter: :meth:`masks` and ``impulse``, its binaural impulse response ``[2, L]``
         (float32, channel 0 = left). Convolving a mono signal with it is :meth:`render` with
-        ``method="filter"`` (the impulse-response task: with any synthesis), before the output's peak limit."""
-        with self._lock, torch.inference_mode():
+        ``method="filter"`` (the impulse-response task: with any synthesis), before the output's peak limit.
+
+        Safe to call from several threads at once (the explorer's spare lane): it reads the model
+        and the pose-independent cache only, so it does not take the renderer's lock."""
+        with torch.inference_mode():
             pose, r = self._response(listener, yaw, source, impulse=True)
             return self._result(pose, r, impulse=r.impulse)
 
