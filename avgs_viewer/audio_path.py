@@ -35,7 +35,6 @@ if TYPE_CHECKING:  # imported when a scene first needs them
 
 METER_INTERVAL_MS = 500
 SHOW_MS = 150
-SHOW_RETRY_MS = 3
 
 
 def audio_status_text(message: str | None, sample_rate: int) -> str:
@@ -82,7 +81,6 @@ class AudioPath(QtCore.QObject):
         self._show_timer = QtCore.QTimer(self)
         self._show_timer.setSingleShot(True)
         self._show_timer.timeout.connect(self._show_heard)
-        self._show_held_since: float | None = None  # perf_counter when a due update first waited for a filter
         self._meters_shown: tuple[float, float] | None = None
         self.clip: np.ndarray | None = None  # the whole clip [T] looped now (what Export audio renders)
         # What reading the clip changed (down-mixed, resampled, cut), for as long as it loops.
@@ -201,28 +199,6 @@ class AudioPath(QtCore.QObject):
             f"Playing this pose's impulse response ({1000 * impulse.shape[1] / self.engine.sample_rate:.0f} ms)", 3000)
 
     # ------------------------------------------------------------------ results (GUI thread)
-    def _sound_first(self) -> bool:
-        """True when the panels' update should wait (and is asked again in SHOW_RETRY_MS): a pose's
-        filter is being made or waits for its first block, and the update has waited less than
-        HOLD_MAX_S. The response's decay and the vicinity colours are tens of ms of Python on the
-        GUI thread, which the filter's thread would wait behind; the sound of a release comes first."""
-        import time
-
-        from .canvas import HOLD_MAX_S
-
-        hold = self.plotter.hold
-        if hold is None or not hold():
-            self._show_held_since = None
-            return False
-        now = time.perf_counter()
-        if self._show_held_since is None:
-            self._show_held_since = now
-        if now - self._show_held_since >= HOLD_MAX_S:
-            self._show_held_since = None
-            return False
-        self._show_timer.start(SHOW_RETRY_MS)
-        return True
-
     def _on_rendered(self, heard: Heard) -> None:
         """A new pose is playing: show its vicinity sets and levels, at most every SHOW_MS while moving."""
         self._shown_heard = heard
@@ -241,8 +217,6 @@ class AudioPath(QtCore.QObject):
         heard = self._shown_heard
         if self._view is None or self.live is None or heard is None or heard is not self.live.heard:
             return  # a newer pose (or another scene) has replaced it
-        if self._sound_first():
-            return
         self._view.set_vicinity(heard.result.listener_vicinity, heard.result.source_vicinity)
         self.panel.show_levels(*heard.levels)  # the clip through this pose's filter, at full volume
         refined = self.live.refined
