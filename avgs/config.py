@@ -217,6 +217,8 @@ class RIRConfig:
     "Weight of the loss on each ear's energy decay curve (Schroeder; whole band and octave bands; in nats re its start, down to 50 dB): what T60, EDT and C50 read. Without it the per-frame log-magnitude loss averages the decays in the log domain and the predicted T60 comes out short (two_rooms, held out: -17 % bias, T60 error 18.5 %; with it and the energy loss 13.0 %). 0: off."
     direct_sound: bool = True
     "Put the direct sound where geometry says: nothing before distance / c, both ears coherent over its first 5 ms with the lagging ear delayed by the spherical head's ITD (its scale fitted to the training responses), the early energy kept (avgs.acoustics.rir_model.place_direct_sound); off: the noise phase from t = 0, the ears independent."
+    direct_ild: bool = True
+    "With direct_sound: the early ILD (the first 5 ms) from a law of the source's direction fitted to the training responses in sight of the source (avgs.acoustics.interaural.ild_law, three sine harmonics), not from B's ears: the head shadow is the head's, which B learns from the room's whole response (two_rooms: early ILD error 2.72 / 3.25 -> see docs/results.md). Off: B's."
     phase: Literal["noise", "griffin-lim"] = "noise"
     "Waveform from the predicted magnitudes: a fixed-seed noise phase, or that phase refined by fast Griffin-Lim (same T60 / C50 / EDT on rect_small, 2.4x the render time)."
     phase_iterations: int = 4
@@ -381,7 +383,8 @@ class SynthesisConfig:
 ADDED_LATER = {
     "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False, "interaural_delay": False},
     "gaussians": {"cpu_max_pixels": 0},
-    "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0, "direct_sound": False},
+    "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0, "direct_sound": False,
+            "direct_ild": False},
 }
 "Fields absent from older stored configurations, with the value that the older code used."
 

@@ -50,6 +50,37 @@ def test_fractional_delay_of_known_signals():
     assert np.argmax(np.abs(moved[1])) == 7 and moved[1, 7] == pytest.approx(np.sinc(0.25), abs=1e-3)
 
 
+def test_the_ild_law_is_fitted_from_known_ilds_and_the_impulse_carries_it():
+    """fit_ild_law recovers a law from measured ILDs; sharpen_direct_sound with an ILD shares the
+    impulse's energy so that the first 5 ms (spatial.early_ild) have it, the total energy kept."""
+    from avgs.acoustics.interaural import fit_ild_law, ild_law
+
+    rng = np.random.default_rng(2)
+    theta = rng.uniform(-np.pi, np.pi, 200)
+    truth = np.array([9.0, 1.4, 0.8])
+    measured = ild_law(torch.from_numpy(theta), torch.from_numpy(truth)).numpy() + rng.normal(0.0, 0.5, 200)
+    np.testing.assert_allclose(fit_ild_law(theta, measured), truth, atol=0.15)
+    assert fit_ild_law(theta[:5], measured[:5]) is None  # too few to say
+
+    fs, L = STFT.sample_rate, 3000
+    start = torch.tensor([[500.4, 507.9], [800.0, 800.0]])  # [2 poses, 2 ears] samples
+    y = torch.from_numpy(rng.standard_normal((2, 2, L)) * 0.05)
+    for b in range(2):  # nothing before each ear's arrival, a loud first 2 ms (the direct sound), then a tail
+        for ear in range(2):
+            s0 = int(start[b, ear])
+            y[b, ear, :s0] = 0.0
+            y[b, ear, s0 : s0 + 44] *= 20.0
+    want = torch.tensor([6.0, -3.0])
+    out = sharpen_direct_sound(y, start, fs, want)
+    plain = sharpen_direct_sound(y, start, fs)  # without: each ear's impulse from its own energy
+    for b in range(2):
+        assert spatial.early_ild(out[b].numpy(), fs) == pytest.approx(float(want[b]), abs=0.5)
+        assert abs(spatial.early_ild(plain[b].numpy(), fs) - float(want[b])) > 2.0
+        # the ILD only moves the impulse's energy between the ears (the rest of the response is the same)
+        assert float(out[b].square().sum()) == pytest.approx(float(plain[b].square().sum()), rel=0.03)
+    np.testing.assert_array_equal(out[0, :, 1000:].numpy(), plain[0, :, 1000:].numpy())
+
+
 def test_the_direct_sound_becomes_the_first_peak_with_its_energy_and_itd():
     """Noise after each ear's arrival whose peak is below a later reflection's -20 dB (the onset comes
     late) becomes an impulse at the arrival: the onset is the arrival, the ITD the one given, the energy kept."""
@@ -106,7 +137,9 @@ def test_a_checkpoint_without_it_is_unchanged(renderer, quick_rir_scene, tmp_pat
 
     ckpt = load_checkpoint(renderer.path)
     ckpt["config"]["rir"]["direct_sound"] = False
+    ckpt["config"]["rir"].pop("direct_ild", None)  # absent: an older checkpoint's
     del ckpt["binauralizer"]["itd_scale"]
+    ckpt["binauralizer"].pop("ild_law", None)
     save_checkpoint(ckpt, tmp_path / "old.ckpt")
     old = SceneRenderer.load(tmp_path / "old.ckpt")
     assert old.model.binauralizer.itd_scale is None

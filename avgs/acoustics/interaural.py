@@ -1,7 +1,7 @@
 """The interaural time difference: when each ear hears the direct sound, from the source's direction.
 
 A listener localises a source first by the interaural time difference (ITD) below about
-1.5 kHz. B predicts magnitudes only, so the ears' timing comes from geometry, as binaural
+1.5 kHz (and by the level difference, ILD, above it: :func:`ild_law` at the end). B predicts magnitudes only, so the ears' timing comes from geometry, as binaural
 synthesis does in the field (a time warp from the source's direction relative to the head,
 then learned amplitudes: Richard et al., ICLR 2021): the spherical head of Woodworth,
 
@@ -93,3 +93,34 @@ def fit_scale(theta, itd, default: float = DEFAULT_SCALE) -> float:
     s, t = shape[keep], tau[keep]
     scale = float(np.dot(s, t) / np.dot(s, s))
     return scale if math.isfinite(scale) and scale > 0 else float(default)
+
+
+ILD_HARMONICS = 3
+"Sine harmonics of the direction in the direct sound's ILD law (:func:`ild_law`)."
+
+
+def ild_law(theta: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
+    """The direct sound's early ILD ``[...]`` dB (left over right, as
+    :func:`avgs.evaluation.spatial.early_ild`) of directions ``theta [...]`` (radians, positive on the
+    left): ``sum_k c_k sin(k theta)``, k = 1..K for ``coefficients [K]``.
+
+    Odd in theta (a source mirrored left to right swaps the ears), with even harmonics for the
+    front-back asymmetry of a head with ears behind its centre. The head shadow is a matter of
+    the head, not of the room: the law is fitted to the training responses (:func:`fit_ild_law`).
+    """
+    k = torch.arange(1, coefficients.shape[-1] + 1, dtype=theta.dtype, device=theta.device)  # [K]
+    return (torch.sin(theta[..., None] * k) * coefficients.to(theta)).sum(-1)
+
+
+def fit_ild_law(theta, ild_db, harmonics: int = ILD_HARMONICS) -> np.ndarray | None:
+    """Least-squares coefficients ``[harmonics]`` (dB) of :func:`ild_law` for measured early ILDs
+    ``ild_db [M]`` at directions ``theta [M]`` (radians); None with fewer than ``4 * harmonics``
+    finite measurements or a fit that is not finite (the law is then not used)."""
+    theta = np.asarray(theta, dtype=np.float64).reshape(-1)
+    ild = np.asarray(ild_db, dtype=np.float64).reshape(-1)
+    keep = np.isfinite(theta) & np.isfinite(ild)
+    if keep.sum() < 4 * harmonics:
+        return None
+    basis = np.sin(theta[keep, None] * np.arange(1, harmonics + 1))  # [M, K]
+    coef, *_ = np.linalg.lstsq(basis, ild[keep], rcond=None)
+    return coef if np.all(np.isfinite(coef)) else None

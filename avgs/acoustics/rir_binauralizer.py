@@ -74,7 +74,7 @@ import torch
 from torch import nn
 
 from avgs.acoustics.encodings import encoded_dim, positional_encoding
-from avgs.acoustics.interaural import DEFAULT_SCALE
+from avgs.acoustics.interaural import DEFAULT_SCALE, ILD_HARMONICS
 from avgs.config import RIRConfig
 
 MLP_LAYERS = 4
@@ -133,6 +133,10 @@ class RIRBinauralizer(nn.Module):
             self.register_buffer("itd_scale", torch.tensor(DEFAULT_SCALE))
         else:
             self.itd_scale = None
+        if cfg.direct_sound and cfg.direct_ild:  # dB per sine harmonic of the direction, fitted (avgs.train)
+            self.register_buffer("ild_law", torch.zeros(ILD_HARMONICS))
+        else:
+            self.ild_law = None
 
     def time_features(self) -> torch.Tensor:
         """``W_t PE(t) + b_t`` for every frame ``[N, W]``: cacheable."""

@@ -31,7 +31,7 @@ from torch import nn
 
 from avgs import dsp
 from avgs.acoustics.field import AcousticField
-from avgs.acoustics.interaural import ear_delays
+from avgs.acoustics.interaural import ear_delays, ild_law
 from avgs.acoustics.model import AVGSModel, ModelCache
 from avgs.acoustics.points import AudioPoints
 from avgs.acoustics.rir_binauralizer import RIRBinauralizer
@@ -151,7 +151,9 @@ class RIRModel(AVGSModel):
             source = source[None].expand(listener.shape[0], -1)
         distance = torch.linalg.vector_norm((source - listener).double(), dim=-1)  # [B]
         theta = signed_direction(listener.double(), yaw.double(), source.double())  # [B]
-        return DirectSound(distance / self.rir.sound_speed, ear_delays(theta, float(scale)))
+        law = getattr(self.binauralizer, "ild_law", None)
+        ild = None if law is None else ild_law(theta, law.double())
+        return DirectSound(distance / self.rir.sound_speed, ear_delays(theta, float(scale)), ild)
 
 
 @dataclass(frozen=True)
@@ -160,6 +162,7 @@ class DirectSound:
 
     arrival: torch.Tensor  # [B] seconds: distance / c
     delays: torch.Tensor  # [B, 2] seconds each ear hears it after that (the ITD: avgs.acoustics.interaural.ear_delays)
+    ild: torch.Tensor | None = None  # [B] dB, left over right, of the first 5 ms (avgs.acoustics.interaural.ild_law); None: B's
 
 
 DIRECT_SECONDS = 0.005
@@ -243,7 +246,7 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
     out = y.double()
     out[..., :lo] = 0.0
     out[..., lo:hi] = gated * (1.0 + (gain[..., None] - 1.0) * back)
-    return sharpen_direct_sound(out, start, fs).to(device=h.device, dtype=h.dtype)
+    return sharpen_direct_sound(out, start, fs, direct.ild).to(device=h.device, dtype=h.dtype)
 
 
 def fractional_delay(x: torch.Tensor, samples: torch.Tensor) -> torch.Tensor:
@@ -261,7 +264,7 @@ def fractional_delay(x: torch.Tensor, samples: torch.Tensor) -> torch.Tensor:
     return torch.fft.irfft(spectrum * torch.polar(torch.ones_like(angle), angle), size)[..., :L]
 
 
-def sharpen_direct_sound(y: torch.Tensor, start: torch.Tensor, fs: float) -> torch.Tensor:
+def sharpen_direct_sound(y: torch.Tensor, start: torch.Tensor, fs: float, ild: torch.Tensor | None = None) -> torch.Tensor:
     """``y [B, 2, L]`` with each ear's first :data:`IMPULSE_SECONDS` after ``start [B, 2]`` (samples,
     fractional) made mostly an impulse at ``start``: the stretch keeps :data:`DIFFUSE_SHARE` of its
     amplitude and the rest of its energy becomes one band-limited impulse (a Hann-windowed sinc of
@@ -271,7 +274,12 @@ def sharpen_direct_sound(y: torch.Tensor, start: torch.Tensor, fs: float) -> tor
     The STFT magnitudes spread the direct sound over a window of noise, whose peak is rarely the
     response's: on the two-room preset a quarter of the responses in sight of the source had their
     onset (-20 dB of the peak) 1-2 ms late. A direct sound is an impulse the head filters; as one it
-    is the response's first peak, and both ears carry exactly the ITD it was given."""
+    is the response's first peak, and both ears carry exactly the ITD it was given.
+
+    ``ild [B]`` (dB, left over right): the impulse's energy (both ears together, as above) is
+    shared between the ears so that the first :data:`DIRECT_SECONDS` from the earlier arrival on
+    (what :func:`avgs.evaluation.spatial.early_ild` reads) have that ILD, as far as the rest of
+    that stretch allows (all the impulse in one ear at most)."""
     L = y.shape[-1]
     y = y.double()
     start = start.double()
@@ -288,10 +296,31 @@ def sharpen_direct_sound(y: torch.Tensor, start: torch.Tensor, fs: float) -> tor
                         torch.zeros_like(offset))
     impulse = torch.sinc(offset) * taper  # [B, 2, S]
     norm = impulse.square().sum(-1, keepdim=True).sqrt().clamp_min(1e-12)
-    impulse = impulse / norm * (energy * (1.0 - DIFFUSE_SHARE**2)).sqrt()[..., None]
     out = y.clone()
-    out[..., lo:hi] = span * (1.0 - stretch * (1.0 - DIFFUSE_SHARE)) + impulse
+    out[..., lo:hi] = span * (1.0 - stretch * (1.0 - DIFFUSE_SHARE))
+    share = energy * (1.0 - DIFFUSE_SHARE**2)  # [B, 2] each ear's impulse energy
+    if ild is not None:
+        share = _shared_for_ild(out, start, share, ild.double(), fs)
+    out[..., lo:hi] += impulse / norm * share.sqrt()[..., None]
     return out
+
+
+def _shared_for_ild(rest: torch.Tensor, start: torch.Tensor, share: torch.Tensor, ild: torch.Tensor,
+                    fs: float) -> torch.Tensor:
+    """Each ear's impulse energy ``[B, 2]``, their sum that of ``share [B, 2]``, such that the first
+    DIRECT_SECONDS after the earlier arrival of ``start [B, 2]`` have ``ild [B]`` dB: with ``rest
+    [B, 2, L]`` the response without its impulses there, ``left + rest_l = r (right + rest_r)``,
+    r = 10^(ild / 10), clamped to [0, sum]."""
+    total = share.sum(-1)  # [B]
+    L = rest.shape[-1]
+    first = start.min(-1).values.floor().long()  # [B] samples
+    at = first[:, None] + torch.arange(max(1, round(DIRECT_SECONDS * fs)))  # [B, n]
+    inside = ((at >= 0) & (at < L)).double()
+    stretch = rest.gather(-1, at.clamp(0, L - 1)[:, None, :].expand(-1, 2, -1)) * inside[:, None, :]  # [B, 2, n]
+    r_l, r_r = stretch.square().sum(-1).unbind(-1)  # [B] each
+    ratio = 10.0 ** (ild / 10.0)
+    left = ((ratio * (total + r_r) - r_l) / (1.0 + ratio)).clamp(min=torch.zeros_like(total), max=total)
+    return torch.stack([left, total - left], dim=-1)
 
 
 def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, phase: str = "griffin-lim",

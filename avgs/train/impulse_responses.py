@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from avgs import dsp
-from avgs.acoustics.interaural import DEFAULT_SCALE, fit_scale
+from avgs.acoustics.interaural import DEFAULT_SCALE, fit_ild_law, fit_scale
 from avgs.acoustics.rir_model import RIRModel, response_waveform
 from avgs.config import STFTConfig, TrainConfig
 from avgs.data.frame import signed_direction
@@ -65,6 +65,8 @@ def rir_quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
 
 
 CHUNK = 32
+IN_SIGHT_S = 1e-3
+"A training response whose onset is at most this after distance / c has the direct sound first (the ILD law's fit)."
 "Responses read and transformed at a time outside the training step (statistics, evaluation)."
 
 
@@ -267,6 +269,7 @@ class ImpulseResponseTraining:
             raise ValueError(f"{self.responses.scene_dir}: no training responses")
         self.evals: dict[str, RIRData] = {}
         self.itd_scale: float | None = None  # fitted by configure() for a fresh run
+        self.ild_law: list[float] | None = None  # dB per harmonic, fitted by configure() for a fresh run
 
     def configure(self, cfg: TrainConfig, log: JsonLinesLog) -> None:
         """A fresh run: the responses' length and frames, and the speed of sound, into ``cfg.rir``."""
@@ -274,18 +277,31 @@ class ImpulseResponseTraining:
         cfg.rir.frames = dsp.n_frames(cfg.rir.length, cfg.stft)
         cfg.rir.sound_speed = speed_of_sound(self.responses) * self.scene.frame.scale  # normalised units per second
         log.write({"stage": "rir", "event": "task", "task": "rir", "responses": len(self.train_set), "length": cfg.rir.length})
-        self.itd_scale = None
+        self.itd_scale, self.ild_law = None, None
         if cfg.rir.direct_sound:  # the head that the training responses' direct sounds carry
             train = self.train_set
             theta = signed_direction(torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
                                      torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64))),
                                      torch.as_tensor(np.asarray(train.source), dtype=torch.float64))
             n = len(train)
-            itds = [spatial.response_itd(h, cfg.stft.sample_rate)
-                    for i in range(0, n, CHUNK) for h in self.responses.read("train", np.arange(i, min(i + CHUNK, n)))]
+            fs = cfg.stft.sample_rate
+            itds, ilds, onsets = [], [], []
+            for i in range(0, n, CHUNK):
+                for h in self.responses.read("train", np.arange(i, min(i + CHUNK, n))):
+                    itds.append(spatial.response_itd(h, fs))
+                    ilds.append(spatial.early_ild(h, fs))
+                    onsets.append(spatial.onset(h) / fs)
             self.itd_scale = fit_scale(theta.numpy(), itds)
             log.write({"stage": "itd", "event": "fit", "scale_us": self.itd_scale * 1e6, "default_us": DEFAULT_SCALE * 1e6,
                        "responses": len(itds)})
+            if cfg.rir.direct_ild:  # the head shadow, from the responses whose first arrival is the direct sound
+                arrival = np.linalg.norm(np.asarray(train.source, dtype=np.float64) - np.asarray(train.receiver, dtype=np.float64),
+                                         axis=-1) / cfg.rir.sound_speed  # [M] seconds (normalised units / their speed)
+                in_sight = np.asarray(onsets) - arrival <= IN_SIGHT_S
+                law = fit_ild_law(theta.numpy()[in_sight], np.asarray(ilds)[in_sight])
+                self.ild_law = None if law is None else [float(c) for c in law]
+                cfg.rir.direct_ild = law is not None  # too few responses in sight of the source: B's ILD, said in the log
+                log.write({"stage": "ild", "event": "fit", "harmonics_db": self.ild_law, "responses": int(in_sight.sum())})
 
     def trainer(self, model: RIRModel, cfg: TrainConfig, resumed: bool) -> RIRTrainer:
         """The trainer on the training responses; a fresh model's floor, mean response and mean
@@ -296,6 +312,9 @@ class ImpulseResponseTraining:
         if not resumed and self.itd_scale is not None:
             with torch.no_grad():
                 model.binauralizer.itd_scale.fill_(self.itd_scale)
+        if not resumed and self.ild_law is not None:
+            with torch.no_grad():
+                model.binauralizer.ild_law.copy_(torch.tensor(self.ild_law))
         if resumed:
             log_floor = float(model.binauralizer.log_floor)
         else:
