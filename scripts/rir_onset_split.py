@@ -2,8 +2,8 @@
 
 A response whose true onset is more than 1 ms after distance / c has no direct sound in the
 simulator (pyroomacoustics: no diffraction, no transmission): its first arrival is a reflection
-that passes a door. Prints, per split, the median onset error (ms) and direct-sound ITD error (us)
-of a checkpoint for the responses in sight of the source and for those behind a wall.
+that passes a door. Prints, per split, the median onset error (ms), direct-sound ITD error (us) and
+early ILD error (dB) of a checkpoint for the responses in sight of the source and for those behind a wall.
 
     .venv/bin/python scripts/rir_onset_split.py data/rir/two_rooms runs/two_rooms.ckpt
 """
@@ -42,12 +42,14 @@ def main(argv: list[str]) -> int:
         pred_on = np.array([spatial.onset(p) for p in pred]) / fs
         onset_ms = np.abs(true_on - pred_on) * 1e3
         itd_us = np.abs([spatial.response_itd(g, fs) - spatial.response_itd(p, fs) for g, p in zip(query.rir, pred)]) * 1e6
+        ild_db = np.abs([spatial.early_ild(g, fs) - spatial.early_ild(p, fs) for g, p in zip(query.rir, pred)])
         behind = true_on - distance / speed > LATE_S
         for label, rows in (("in sight", ~behind), ("behind a wall", behind)):
             if rows.any():
                 print(f"{split:8s} {label:14s} {int(rows.sum()):4d} responses: onset {np.median(onset_ms[rows]):.2f} ms, "
-                      f"ITD {np.median(itd_us[rows]):.0f} us")
-        print(f"{split:8s} {'all':14s} {len(query):4d} responses: onset {np.median(onset_ms):.2f} ms, ITD {np.median(itd_us):.0f} us")
+                      f"ITD {np.median(itd_us[rows]):.0f} us, ILD {np.median(ild_db[rows]):.2f} dB")
+        print(f"{split:8s} {'all':14s} {len(query):4d} responses: onset {np.median(onset_ms):.2f} ms, ITD {np.median(itd_us):.0f} us, "
+              f"ILD {np.median(ild_db):.2f} dB")
     return 0
 
 

@@ -139,7 +139,8 @@ def test_a_checkpoint_without_it_is_unchanged(renderer, quick_rir_scene, tmp_pat
     ckpt["config"]["rir"]["direct_sound"] = False
     ckpt["config"]["rir"].pop("direct_ild", None)  # absent: an older checkpoint's
     del ckpt["binauralizer"]["itd_scale"]
-    ckpt["binauralizer"].pop("ild_law", None)
+    for key in ("ild_law", "sight_radius", "sight_margin", "sight_blocked"):
+        ckpt["binauralizer"].pop(key, None)
     save_checkpoint(ckpt, tmp_path / "old.ckpt")
     old = SceneRenderer.load(tmp_path / "old.ckpt")
     assert old.model.binauralizer.itd_scale is None
@@ -148,3 +149,25 @@ def test_a_checkpoint_without_it_is_unchanged(renderer, quick_rir_scene, tmp_pat
         warnings.simplefilter("ignore")
         h = old.binaural_filter((lo + hi) / 2, 0.0, (lo + hi) / 2 + np.array([0.0, 1.5, 0.0])).impulse
     assert np.any(h[:, :16] != 0)  # sound from the first samples on, as before
+
+
+def test_a_wall_of_points_blocks_the_straight_path_and_the_threshold_is_fitted():
+    """A wall of points at x = 0 (a door at 1 < y < 2): paths across it count its points, a path through
+    the door or beside it none; the threshold fitted from labelled pairs separates them."""
+    from avgs.acoustics.line_of_sight import fit_blocked_count, points_on_path
+
+    ys, zs = np.meshgrid(np.arange(-3.0, 3.0, 0.05), np.arange(0.0, 2.5, 0.05))
+    wall = np.stack([np.zeros(ys.size), ys.ravel(), zs.ravel()], 1)
+    wall = wall[(wall[:, 1] < 1.0) | (wall[:, 1] > 2.0) | (wall[:, 2] > 2.1)]  # the door's opening
+    pts = torch.from_numpy(wall)
+    a = torch.tensor([[-2.0, 0.0, 1.5], [-2.0, 1.5, 1.5], [-2.0, -1.0, 1.5], [1.0, 0.0, 1.5]])
+    b = torch.tensor([[2.0, 0.0, 1.5], [2.0, 1.5, 1.5], [-0.5, 2.5, 1.5], [3.0, 1.0, 1.5]])
+    counts = points_on_path(pts, a, b, radius=0.2, margin=0.3).numpy()
+    assert counts[0] > 20 and counts[1] == 0 and counts[2] == 0 and counts[3] == 0  # across, door, same side x2
+    near = points_on_path(pts, torch.tensor([[-0.1, 0.0, 1.5]]), torch.tensor([[2.0, 0.0, 1.5]]), 0.2, 0.3)
+    assert int(near[0]) == 0  # the wall within the margin of the listener: its own surroundings
+    labels = np.array([False, True, True, True] * 3)
+    noisy = np.concatenate([counts, counts + 2, counts + 1])
+    t = fit_blocked_count(noisy, labels)
+    assert t is not None and np.all((noisy >= t) == ~labels)
+    assert fit_blocked_count(noisy, np.ones(12, bool)) is None  # no pair behind a wall: nothing to tell apart

@@ -75,6 +75,9 @@ from torch import nn
 
 from avgs.acoustics.encodings import encoded_dim, positional_encoding
 from avgs.acoustics.interaural import DEFAULT_SCALE, ILD_HARMONICS
+
+NEVER_BLOCKED = 1e12
+"The ``sight_blocked`` count of a model without the straight path's test: no path is blocked."
 from avgs.config import RIRConfig
 
 MLP_LAYERS = 4
@@ -135,6 +138,11 @@ class RIRBinauralizer(nn.Module):
             self.itd_scale = None
         if cfg.direct_sound and cfg.direct_ild:  # dB per sine harmonic of the direction, fitted (avgs.train)
             self.register_buffer("ild_law", torch.zeros(ILD_HARMONICS))
+            # The straight path's test (avgs.acoustics.line_of_sight), fitted with it: radius and margin in the
+            # model's units; a path with at least `sight_blocked` points along it is behind a wall (never: NEVER_BLOCKED).
+            self.register_buffer("sight_radius", torch.tensor(0.0))
+            self.register_buffer("sight_margin", torch.tensor(0.0))
+            self.register_buffer("sight_blocked", torch.tensor(NEVER_BLOCKED))
         else:
             self.ild_law = None
 

@@ -32,6 +32,7 @@ from torch import nn
 from avgs import dsp
 from avgs.acoustics.field import AcousticField
 from avgs.acoustics.interaural import ear_delays, ild_law
+from avgs.acoustics.line_of_sight import points_on_path
 from avgs.acoustics.model import AVGSModel, ModelCache
 from avgs.acoustics.points import AudioPoints
 from avgs.acoustics.rir_binauralizer import RIRBinauralizer
@@ -151,8 +152,14 @@ class RIRModel(AVGSModel):
             source = source[None].expand(listener.shape[0], -1)
         distance = torch.linalg.vector_norm((source - listener).double(), dim=-1)  # [B]
         theta = signed_direction(listener.double(), yaw.double(), source.double())  # [B]
-        law = getattr(self.binauralizer, "ild_law", None)
-        ild = None if law is None else ild_law(theta, law.double())
+        b = self.binauralizer
+        law = getattr(b, "ild_law", None)
+        ild = None
+        if law is not None:  # the head shadow where the straight path is free; behind a wall (NaN) B's ILD
+            ild = ild_law(theta, law.double())
+            along = points_on_path(self.points.X.detach().double(), listener.double(), source.double(),
+                                   float(b.sight_radius), float(b.sight_margin))
+            ild = torch.where(along.double() >= float(b.sight_blocked), torch.full_like(ild, float("nan")), ild)
         return DirectSound(distance / self.rir.sound_speed, ear_delays(theta, float(scale)), ild)
 
 
@@ -162,7 +169,7 @@ class DirectSound:
 
     arrival: torch.Tensor  # [B] seconds: distance / c
     delays: torch.Tensor  # [B, 2] seconds each ear hears it after that (the ITD: avgs.acoustics.interaural.ear_delays)
-    ild: torch.Tensor | None = None  # [B] dB, left over right, of the first 5 ms (avgs.acoustics.interaural.ild_law); None: B's
+    ild: torch.Tensor | None = None  # [B] dB, left over right, of the first 5 ms (avgs.acoustics.interaural.ild_law); None / NaN: B's
 
 
 DIRECT_SECONDS = 0.005
@@ -276,7 +283,7 @@ def sharpen_direct_sound(y: torch.Tensor, start: torch.Tensor, fs: float, ild: t
     onset (-20 dB of the peak) 1-2 ms late. A direct sound is an impulse the head filters; as one it
     is the response's first peak, and both ears carry exactly the ITD it was given.
 
-    ``ild [B]`` (dB, left over right): the impulse's energy (both ears together, as above) is
+    ``ild [B]`` (dB, left over right; NaN: as without): the impulse's energy (both ears together, as above) is
     shared between the ears so that the first :data:`DIRECT_SECONDS` from the earlier arrival on
     (what :func:`avgs.evaluation.spatial.early_ild` reads) have that ILD, as far as the rest of
     that stretch allows (all the impulse in one ear at most)."""
@@ -320,7 +327,8 @@ def _shared_for_ild(rest: torch.Tensor, start: torch.Tensor, share: torch.Tensor
     r_l, r_r = stretch.square().sum(-1).unbind(-1)  # [B] each
     ratio = 10.0 ** (ild / 10.0)
     left = ((ratio * (total + r_r) - r_l) / (1.0 + ratio)).clamp(min=torch.zeros_like(total), max=total)
-    return torch.stack([left, total - left], dim=-1)
+    given = torch.isfinite(ild)[:, None]  # NaN: that pose keeps its ears' own energies
+    return torch.where(given, torch.stack([left, total - left], dim=-1), share)
 
 
 def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, phase: str = "griffin-lim",

@@ -270,6 +270,8 @@ class ImpulseResponseTraining:
         self.evals: dict[str, RIRData] = {}
         self.itd_scale: float | None = None  # fitted by configure() for a fresh run
         self.ild_law: list[float] | None = None  # dB per harmonic, fitted by configure() for a fresh run
+        self._in_sight: np.ndarray | None = None  # [M] training pairs whose first arrival is the direct sound
+        self._log: JsonLinesLog | None = None
 
     def configure(self, cfg: TrainConfig, log: JsonLinesLog) -> None:
         """A fresh run: the responses' length and frames, and the speed of sound, into ``cfg.rir``."""
@@ -277,7 +279,7 @@ class ImpulseResponseTraining:
         cfg.rir.frames = dsp.n_frames(cfg.rir.length, cfg.stft)
         cfg.rir.sound_speed = speed_of_sound(self.responses) * self.scene.frame.scale  # normalised units per second
         log.write({"stage": "rir", "event": "task", "task": "rir", "responses": len(self.train_set), "length": cfg.rir.length})
-        self.itd_scale, self.ild_law = None, None
+        self.itd_scale, self.ild_law, self._in_sight, self._log = None, None, None, log
         if cfg.rir.direct_sound:  # the head that the training responses' direct sounds carry
             train = self.train_set
             theta = signed_direction(torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
@@ -298,10 +300,33 @@ class ImpulseResponseTraining:
                 arrival = np.linalg.norm(np.asarray(train.source, dtype=np.float64) - np.asarray(train.receiver, dtype=np.float64),
                                          axis=-1) / cfg.rir.sound_speed  # [M] seconds (normalised units / their speed)
                 in_sight = np.asarray(onsets) - arrival <= IN_SIGHT_S
+                self._in_sight = in_sight  # the straight path's test is fitted on them with the model's points (trainer)
                 law = fit_ild_law(theta.numpy()[in_sight], np.asarray(ilds)[in_sight])
                 self.ild_law = None if law is None else [float(c) for c in law]
                 cfg.rir.direct_ild = law is not None  # too few responses in sight of the source: B's ILD, said in the log
                 log.write({"stage": "ild", "event": "fit", "harmonics_db": self.ild_law, "responses": int(in_sight.sum())})
+
+    def _fit_sight(self, model: RIRModel) -> None:
+        """The straight path's test (:mod:`avgs.acoustics.line_of_sight`): the count of G_a's points along
+        a training pair's path from which it is behind a wall, fitted to the pairs' own first arrivals."""
+        from avgs.acoustics.line_of_sight import MARGIN_M, RADIUS_M, fit_blocked_count, points_on_path
+        from avgs.acoustics.rir_binauralizer import NEVER_BLOCKED
+
+        b, train, scale = model.binauralizer, self.train_set, float(self.scene.frame.scale)
+        radius, margin = RADIUS_M * scale, MARGIN_M * scale  # the model's units
+        counts = points_on_path(model.points.X.detach().double().cpu(), torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
+                                torch.as_tensor(np.asarray(train.source), dtype=torch.float64), radius, margin).numpy()
+        threshold = fit_blocked_count(counts, self._in_sight)
+        with torch.no_grad():
+            b.sight_radius.fill_(radius)
+            b.sight_margin.fill_(margin)
+            b.sight_blocked.fill_(NEVER_BLOCKED if threshold is None else threshold)
+        if self._log is not None:
+            sight = self._in_sight
+            blocked = counts >= (NEVER_BLOCKED if threshold is None else threshold)
+            self._log.write({"stage": "sight", "event": "fit", "blocked_from_points": threshold, "pairs_in_sight": int(sight.sum()),
+                             "pairs_behind": int((~sight).sum()), "agree_in_sight": int((~blocked & sight).sum()),
+                             "agree_behind": int((blocked & ~sight).sum())})
 
     def trainer(self, model: RIRModel, cfg: TrainConfig, resumed: bool) -> RIRTrainer:
         """The trainer on the training responses; a fresh model's floor, mean response and mean
@@ -315,6 +340,7 @@ class ImpulseResponseTraining:
         if not resumed and self.ild_law is not None:
             with torch.no_grad():
                 model.binauralizer.ild_law.copy_(torch.tensor(self.ild_law))
+            self._fit_sight(model)
         if resumed:
             log_floor = float(model.binauralizer.log_floor)
         else:
