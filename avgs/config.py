@@ -218,7 +218,7 @@ class RIRConfig:
     direct_sound: bool = True
     "Put the direct sound where geometry says: nothing before distance / c, both ears coherent over its first 5 ms with the lagging ear delayed by the spherical head's ITD (its scale fitted to the training responses), the early energy kept (avgs.acoustics.rir_model.place_direct_sound); off: the noise phase from t = 0, the ears independent."
     direct_ild: bool = True
-    "With direct_sound: the early ILD (the first 5 ms) from a law of the source's direction fitted to the training responses in sight of the source (avgs.acoustics.interaural.ild_law, three sine harmonics), not from B's ears: the head shadow is the head's, which B learns from the room's whole response (two_rooms: early ILD error 2.72 / 3.25 -> see docs/results.md). Off: B's."
+    "With direct_sound: the early ILD (the first 5 ms) from a law of the source's direction fitted to the training responses in sight of the source (avgs.acoustics.interaural.ild_law, three sine harmonics), not from B's ears: the head shadow is the head's, which B learns from the room's whole response (two_rooms: early ILD error 2.72 / 3.24 -> 1.95 / 2.43 dB, val / held out), where the straight path is free (avgs.acoustics.line_of_sight: G_a's points along it, the threshold fitted to the training pairs' first arrivals); behind a wall, and with this off, B's."
     phase: Literal["noise", "griffin-lim"] = "noise"
     "Waveform from the predicted magnitudes: a fixed-seed noise phase, or that phase refined by fast Griffin-Lim (same T60 / C50 / EDT on rect_small, 2.4x the render time)."
     phase_iterations: int = 4

@@ -131,6 +131,35 @@ def test_a_response_starts_at_distance_over_c_with_the_itd_of_its_side(renderer)
             assert spatial.response_itd(h, fs) == pytest.approx(-tau, abs=30e-6)  # negative: the left ear leads
 
 
+def test_the_fitted_head_shadow_makes_the_near_ear_louder_and_info_says_so(renderer, tmp_path, capsys):
+    """The ILD law fitted to the quick scene's responses (a room without walls inside: every path free):
+    a source on the left gives a louder left ear in the first 5 ms than B's own ILD does (the same
+    weights without the law), and mirrored the right; ``avgs info`` prints the law."""
+    from avgs.cli import main
+    from avgs.io.checkpoint import load_checkpoint, save_checkpoint
+
+    law = renderer.model.binauralizer.ild_law.double()
+    assert float(law[0]) > 2.0  # the first harmonic: the near ear louder, by several dB at 90 degrees
+    ckpt = load_checkpoint(renderer.path)
+    ckpt["config"]["rir"]["direct_ild"] = False
+    for key in ("ild_law", "sight_radius", "sight_margin", "sight_blocked"):
+        del ckpt["binauralizer"][key]
+    save_checkpoint(ckpt, tmp_path / "no_law.ckpt")
+    plain = SceneRenderer.load(tmp_path / "no_law.ckpt")
+    lo, hi = renderer.bounds
+    listener = (lo + hi) / 2
+    source = listener + np.array([0.0, 1.5, 0.0])
+    fs = renderer.sample_rate
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for yaw, side in ((0.0, 1.0), (180.0, -1.0)):  # facing +x: the source on the left; facing -x: on the right
+            with_law = spatial.early_ild(renderer.binaural_filter(listener, yaw, source).impulse, fs)
+            without = spatial.early_ild(plain.binaural_filter(listener, yaw, source).impulse, fs)
+            assert side * with_law > 1.0 and side * (with_law - without) > 1.0
+    assert main(["info", str(renderer.path)]) == 0
+    assert "direct sound's ILD: " in capsys.readouterr().out
+
+
 def test_a_checkpoint_without_it_is_unchanged(renderer, quick_rir_scene, tmp_path):
     """Older checkpoints (direct_sound absent: off) render as before: the noise phase from t = 0."""
     from avgs.io.checkpoint import load_checkpoint, save_checkpoint

@@ -59,6 +59,10 @@ def summary(path) -> dict:
         "rt60_s": octave_rt60(ckpt["binauralizer"].get("reverb.log_rt60"), stft),
         "itd_scale_us": (None if ckpt["binauralizer"].get("itd_scale") is None
                          else 1e6 * float(ckpt["binauralizer"]["itd_scale"])),
+        "ild_law_db": (None if ckpt["binauralizer"].get("ild_law") is None
+                       else [float(c) for c in ckpt["binauralizer"]["ild_law"]]),
+        "blocked_from_points": (None if ckpt["binauralizer"].get("sight_blocked") is None
+                                else float(ckpt["binauralizer"]["sight_blocked"])),
         "metrics": {k: v for k, v in dict(ckpt.get("metrics") or {}).items()},
     }
 
@@ -119,6 +123,12 @@ def run(args: argparse.Namespace) -> int:
         scale = info["itd_scale_us"]
         print(f"  ears: a spherical head's ITD, a / c = {scale:.0f} us (a = {scale * 0.0343:.1f} cm at 343 m/s; "
               f"{scale * (math.pi / 2 + 1):.0f} us at 90 degrees)")
+    if info["ild_law_db"] is not None:
+        law = " + ".join(f"{c:.1f} sin {k + 1 if k else ''}theta" for k, c in enumerate(info["ild_law_db"]))
+        blocked = info["blocked_from_points"]
+        where = ("everywhere (no wall told apart in training)" if blocked is None or blocked >= 1e11 else
+                 f"where the straight path is free (behind a wall from {blocked:.0f} audio points along it: B's ILD)")
+        print(f"  direct sound's ILD: {law} dB, {where}")
     if info["rt60_s"]:
         print("  learned RT60 " + ", ".join(f"{fc} Hz {v:.2f} s" for fc, v in info["rt60_s"].items()))
     if info["metrics"]:
