@@ -27,11 +27,11 @@ mkdir -p "$WORK"
 
 # 3. Stage 2 of the impulse-response task: G_a (8000 of G's points), F and the RIR variant of B.
 #    The defaults: the ears' energy and energy-decay losses, the direct-plus-diffuse distance law
-#    (docs/results.md "Impulse responses") and the direct sound placed by geometry with the head
-#    fitted to the training responses (RIRConfig.direct_sound). The committed demo got the last one
-#    without retraining (it is render-time; B's weights are the same): its config's direct_sound set
-#    and binauralizer.itd_scale fitted by avgs.train.impulse_responses.ImpulseResponseTraining.configure
-#    on this scene (273 us).
+#    (docs/results.md "Impulse responses"), the direct sound placed by geometry with the head fitted to
+#    the training responses (RIRConfig.direct_sound; 273 us) and its early ILD from a fitted head shadow
+#    where G_a leaves the straight path free (RIRConfig.direct_ild; the log's "ild" and "sight" records:
+#    9.0 / 1.3 / 0.8 dB, blocked from 7 points along a path, 320 / 342 and 106 / 106 training pairs told
+#    apart). The committed demo was made so on 2026-11-26 (stage 1 12 min, stage 2 1 min, one thread).
 OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --init gs --out "$WORK/scene.ckpt" --audio-points 8000 \
   --iterations 500 --batch-size 8 --lr 1e-3 --rir-width 256 --eval-every 250
 
