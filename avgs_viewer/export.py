@@ -71,14 +71,7 @@ def annotated(view: Any, legend: bool = True, caption: bool = False) -> Iterator
 
 def write_wav(path: str | Path, binaural: np.ndarray, sample_rate: int, inputs=()) -> Path:
     """Write binaural [2, T] audio as a 2-channel float WAV (left first); never over one of ``inputs``."""
-    binaural = np.asarray(binaural, dtype=np.float32)
-    if binaural.ndim != 2 or binaural.shape[0] != 2:
-        raise ValueError(f"binaural audio must be [2, T], got shape {binaural.shape}")
-    path = Path(path)
-    if path.suffix.lower() != ".wav":
-        raise ValueError(f"audio export must be a .wav file, got {path}")
-    atomic.check_output(path, inputs=inputs, what="audio export")
-    return atomic.write_wav(path, binaural, sample_rate, make_parents=False)
+    return atomic.write_binaural_wav(path, binaural, sample_rate, inputs, what="audio export", make_parents=False)
 
 
 @contextlib.contextmanager

@@ -112,11 +112,4 @@ def read_grid(path: str | Path) -> ResponseGrid:
 
 def write_impulse_wav(path: str | Path, impulse: np.ndarray, sample_rate: int, inputs=()) -> Path:
     """One pose's binaural response ``[2, L]`` as a 2-channel float32 WAV (channel 0 = left)."""
-    impulse = np.asarray(impulse, dtype=np.float32)
-    if impulse.ndim != 2 or impulse.shape[0] != 2:
-        raise ValueError(f"a binaural impulse response must be [2, L], got shape {impulse.shape}")
-    path = Path(path)
-    if path.suffix.lower() != ".wav":
-        raise ValueError(f"an impulse response must be written to a .wav file, got {path}")
-    atomic.check_output(path, inputs=inputs, what="impulse-response output")
-    return atomic.write_wav(path, impulse, sample_rate)
+    return atomic.write_binaural_wav(path, impulse, sample_rate, inputs, what="impulse-response output")

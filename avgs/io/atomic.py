@@ -265,6 +265,22 @@ def write_wav(path: str | Path, audio, sample_rate: int, make_parents: bool = Tr
     return write_audio(path, audio, sample_rate, "WAV", "FLOAT", make_parents=make_parents)
 
 
+def write_binaural_wav(path: str | Path, binaural, sample_rate: int, inputs=(), what: str = "binaural audio",
+                       make_parents: bool = True) -> Path:
+    """``binaural [2, T]`` (channel 0 = left) as a 2-channel 32-bit float WAV at ``path``, which must
+    end in ``.wav`` and be none of ``inputs`` (:func:`check_output`); errors name ``what`` and the value."""
+    import numpy as np
+
+    binaural = np.asarray(binaural, dtype=np.float32)
+    if binaural.ndim != 2 or binaural.shape[0] != 2:
+        raise ValueError(f"{what} must be [2, T] (left, right), got shape {binaural.shape}")
+    path = Path(path)
+    if path.suffix.lower() != ".wav":
+        raise ValueError(f"{what} must be written to a .wav file, got {path}")
+    check_output(path, inputs=inputs, what=what)
+    return write_wav(path, binaural, sample_rate, make_parents=make_parents)
+
+
 def torch_save(obj, path: str | Path) -> Path:
     """``torch.save`` to ``path`` atomically (flushed to disk before the rename)."""
     import torch
