@@ -9,8 +9,25 @@ filter need not wait for a stale move's); a result older than one already delive
 
 from __future__ import annotations
 
+import os
 import threading
 from typing import Any, Callable, Generic, TypeVar
+
+BACKGROUND_NICE = 10
+"How much lower a background thread (the listener's-view inset, the propagation map) runs than the sound."
+
+
+def lower_priority(nice: int = BACKGROUND_NICE) -> bool:
+    """Lower the calling thread's CPU priority by ``nice`` (Linux: a thread is a task with its own
+    nice value), so that on a busy machine the scheduler runs the pose's filter, the GUI and the
+    X server first; False where the system does not allow it (nothing changes then)."""
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, min(19, os.getpriority(os.PRIO_PROCESS, tid) + int(nice)))
+        return True
+    except (AttributeError, OSError):
+        return False
+
 
 Request = TypeVar("Request")
 "What is submitted (the filter path: a :class:`~avgs_viewer.worker.PoseRequest`)."
@@ -25,13 +42,15 @@ class RenderWorker(Generic[Request, Result]):
     worker thread; ``seq`` numbers submissions from 1, and results reach ``on_result`` in that
     order (one older than a result already delivered is dropped: :attr:`superseded`).
     ``spare``: a second thread that only :meth:`expedite` uses; ``render`` must then be safe to
-    run on two threads at once.
+    run on two threads at once. ``nice``: the thread's CPU priority lowered by that much
+    (:func:`lower_priority`; background work that must not slow the sound).
     """
 
     def __init__(self, render: Callable[[Request], Result], on_result: Callable[[int, Request, Result], None],
                  on_error: Callable[[int, Request, BaseException], None] | None = None, name: str = "avgs-render",
-                 spare: bool = False):
+                 spare: bool = False, nice: int = 0):
         self._render = render
+        self._nice = int(nice)
         self._on_result = on_result
         self._on_error = on_error
         self._cond = threading.Condition()
@@ -99,6 +118,8 @@ class RenderWorker(Generic[Request, Result]):
         return self._thread.is_alive() and (self._spare is None or self._spare.is_alive())
 
     def _loop(self) -> None:
+        if self._nice:
+            lower_priority(self._nice)
         while True:
             with self._cond:
                 while not self._has_request and not self._closed:

@@ -165,6 +165,9 @@ class MapWorker:
         return False
 
     def _loop(self) -> None:
+        from .newest import lower_priority
+
+        lower_priority()  # below the sound's threads, as the inset
         while True:
             with self._cond:
                 while self._pending is None and not self._closed:
@@ -419,7 +422,7 @@ class ListenerInset:
     def __init__(self, plotter: pv.Plotter, state: ViewerState, load_view: Callable[[], Any],
                  post: Callable[[Callable[[], None]], None] = _run_now, timer=None, settle_ms: int = 300,
                  size: tuple[int, int] = (192, 144)):
-        from .newest import RenderWorker
+        from .newest import BACKGROUND_NICE, RenderWorker
 
         self.plotter, self.state = plotter, state
         self.size = size
@@ -432,7 +435,8 @@ class ListenerInset:
         self._rep = None
         self.available = True
         self._timer = None if timer is None else timer(settle_ms, self.request)
-        self.worker = RenderWorker(self._render, self._rendered, self._failed, name="avgs-inset")
+        # G rasterised on the CPU takes tens of ms: at a lower priority, so it never slows a pose's filter
+        self.worker = RenderWorker(self._render, self._rendered, self._failed, name="avgs-inset", nice=BACKGROUND_NICE)
         ev = state.events
         self._subscriptions = [(ev.pose, self._on_pose), (ev.interacting, self._on_pose)]
         for event, cb in self._subscriptions:

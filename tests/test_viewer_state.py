@@ -427,3 +427,20 @@ def test_binaural_filters_on_two_threads_equal_those_made_one_after_another():
         parallel = list(pool.map(lambda q: r.binaural_filter(q[0], q[1], source=q[2]).impulse, poses))
     for a, b in zip(serial, parallel):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_background_worker_runs_at_a_lower_priority_than_the_process():
+    """The inset's and the map's threads yield the CPU to the sound: their nice value is the process's + 10."""
+    import os
+
+    seen = []
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    w = RenderWorker(lambda x: seen.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id())),
+                     lambda *a: None, nice=10)
+    try:
+        w.submit(1)
+        assert w.wait_idle(5)
+    finally:
+        w.close()
+    assert seen == [min(19, base + 10)]
+    assert os.getpriority(os.PRIO_PROCESS, 0) == base  # the process (the GUI, the filter's threads) unchanged

@@ -32,14 +32,17 @@ MIN_ACCURACY = 0.8
 
 def points_on_path(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor, radius: float, margin: float) -> torch.Tensor:
     """How many of ``points [P, 3]`` lie within ``radius`` of each segment ``a [B, 3]`` -> ``b [B, 3]``,
-    not within ``margin`` of its ends (all in one unit): ``[B]`` int64."""
+    not within ``margin`` of its ends (all in one unit): ``[B]`` int64. In ``points``' precision, by
+    matrix products (the explorer asks once per pose of a drag)."""
+    a, b = a.to(points.dtype), b.to(points.dtype)
     ab = b - a  # [B, 3]
     length = torch.linalg.vector_norm(ab, dim=-1).clamp_min(1e-12)  # [B]
-    rel = points[None] - a[:, None]  # [B, P, 3]
-    along = (rel * ab[:, None]).sum(-1) / length[:, None]  # [B, P] distance along the path from a
-    off = torch.linalg.vector_norm(rel - along[..., None] * (ab / length[:, None])[:, None], dim=-1)  # [B, P] from the line
-    inner = (along > margin) & (along < length[:, None] - margin)
-    return ((off < radius) & inner).sum(-1)
+    unit = ab / length[:, None]  # [B, 3]
+    along = points @ unit.T - (a * unit).sum(-1)  # [P, B] distance along each path from its a
+    square = (points.square().sum(-1, keepdim=True) - 2.0 * points @ a.T + a.square().sum(-1))  # [P, B] |p - a|^2
+    off = square - along.square()  # [P, B] squared distance from each line
+    inner = (along > margin) & (along < length - margin)
+    return ((off < radius * radius) & inner).sum(0)
 
 
 def fit_blocked_count(counts, in_sight) -> float | None:

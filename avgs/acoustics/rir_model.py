@@ -157,7 +157,7 @@ class RIRModel(AVGSModel):
         ild = None
         if law is not None:  # the head shadow where the straight path is free; behind a wall (NaN) B's ILD
             ild = ild_law(theta, law.double())
-            along = points_on_path(self.points.X.detach().double(), listener.double(), source.double(),
+            along = points_on_path(self.points.X.detach(), listener, source,
                                    float(b.sight_radius), float(b.sight_margin))
             ild = torch.where(along.double() >= float(b.sight_blocked), torch.full_like(ild, float("nan")), ild)
         return DirectSound(distance / self.rir.sound_speed, ear_delays(theta, float(scale)), ild)
