@@ -199,13 +199,21 @@ class AudioPath(QtCore.QObject):
             f"Playing this pose's impulse response ({1000 * impulse.shape[1] / self.engine.sample_rate:.0f} ms)", 3000)
 
     # ------------------------------------------------------------------ results (GUI thread)
+    def _passing(self, heard: Heard) -> bool:
+        """Whether ``heard`` is a pose passed through: a handle is dragged, or a newer pose's filter
+        is on its way (after a release, the moves' filters still arrive while the released pose's is
+        made). Such a pose is shown light (no T60), at most every SHOW_MS, so the GUI thread never
+        takes the CPU from the filter the user waits for."""
+        state, live = self._state, self.live
+        return (state is not None and state.interacting) or (live is not None and heard.request.seq != live.seq)
+
     def _on_rendered(self, heard: Heard) -> None:
         """A new pose is playing: show its vicinity sets and levels, at most every SHOW_MS while moving."""
         self._shown_heard = heard
-        if not self._show_timer.isActive():
-            state = self._state
-            moving = state is not None and state.interacting
-            self._show_timer.start(SHOW_MS if moving else 0)
+        if not self._passing(heard):
+            self._show_timer.start(0)  # the pose the user stopped at: at once, in full
+        elif not self._show_timer.isActive():
+            self._show_timer.start(SHOW_MS)
 
     def interaction_changed(self, moving: bool) -> None:
         """A move ended: show the pose heard now in full (the response's T60 is measured only then)."""
@@ -223,7 +231,7 @@ class AudioPath(QtCore.QObject):
         self.panel.show_heard(None if self.live.refiner is None else
                               refined is not None and refined.seq == heard.request.seq)
         self.response.show_response(heard.result.impulse, self.renderer.sample_rate,  # the filter it plays
-                                    moving=self._state.interacting)
+                                    moving=self._passing(heard))
 
     def _on_refined(self, refined: Refined) -> None:
         """The pose heard now plays its loop rendered in full."""

@@ -4,7 +4,7 @@ Requests submitted while one runs overwrite each other; when it is done only the
 runs next. With a spare lane, :meth:`RenderWorker.expedite` starts the newest request at once on a
 second thread instead of behind the one running (the explorer's release of a drag: its pose's
 filter need not wait for a stale move's); a result older than one already delivered is dropped. The explorer's filter path (:mod:`avgs_viewer.worker`), its full-render path
-(:mod:`avgs_viewer.refine`) and the listener's-view inset each run on one. No Qt here.
+(:mod:`avgs_viewer.refine`) each run on one. No Qt here.
 """
 
 from __future__ import annotations
@@ -42,15 +42,13 @@ class RenderWorker(Generic[Request, Result]):
     worker thread; ``seq`` numbers submissions from 1, and results reach ``on_result`` in that
     order (one older than a result already delivered is dropped: :attr:`superseded`).
     ``spare``: a second thread that only :meth:`expedite` uses; ``render`` must then be safe to
-    run on two threads at once. ``nice``: the thread's CPU priority lowered by that much
-    (:func:`lower_priority`; background work that must not slow the sound).
+    run on two threads at once.
     """
 
     def __init__(self, render: Callable[[Request], Result], on_result: Callable[[int, Request, Result], None],
                  on_error: Callable[[int, Request, BaseException], None] | None = None, name: str = "avgs-render",
-                 spare: bool = False, nice: int = 0):
+                 spare: bool = False):
         self._render = render
-        self._nice = int(nice)
         self._on_result = on_result
         self._on_error = on_error
         self._cond = threading.Condition()
@@ -118,8 +116,6 @@ class RenderWorker(Generic[Request, Result]):
         return self._thread.is_alive() and (self._spare is None or self._spare.is_alive())
 
     def _loop(self) -> None:
-        if self._nice:
-            lower_priority(self._nice)
         while True:
             with self._cond:
                 while not self._has_request and not self._closed:

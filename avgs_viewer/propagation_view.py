@@ -111,7 +111,8 @@ class MapWorker:
     ``gate()`` is called before every chunk; while it returns False the thread waits.
     """
 
-    def __init__(self, compute, on_partial, on_error=None, gate: Callable[[], bool] | None = None):
+    def __init__(self, compute, on_partial, on_error=None, gate: Callable[[], bool] | None = None,
+                 name: str = "avgs-map"):
         self._compute, self._on_partial, self._on_error = compute, on_partial, on_error
         self._gate = gate
         self._cond = threading.Condition()
@@ -119,7 +120,7 @@ class MapWorker:
         self._pending: tuple[int, Any] | None = None
         self._running: int | None = None
         self._closed = False
-        self._thread = threading.Thread(target=self._loop, name="avgs-map", daemon=True)
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
         self._thread.start()
 
     def submit(self, request: Any) -> int:
@@ -167,7 +168,7 @@ class MapWorker:
     def _loop(self) -> None:
         from .newest import lower_priority
 
-        lower_priority()  # below the sound's threads, as the inset
+        lower_priority()  # below the sound's threads (the map and the inset)
         while True:
             with self._cond:
                 while self._pending is None and not self._closed:
@@ -411,8 +412,12 @@ def place_bar(bar, rect) -> None:
 
 
 class ListenerInset:
-    """G seen from the listener, as an image in a corner of the 3D view; re-rendered on a
-    background thread after the listener stops (``settle_ms`` without a pose change).
+    """G seen from the listener, as an image in a corner of the 3D view; rendered on a background
+    thread once the listener has stopped for ``settle_ms``.
+
+    The sound comes first: the render starts only while no handle is dragged and the audio path
+    is idle (``audio_busy``), waits between chunks of tiles while it is busy, and is abandoned at
+    the next chunk when the pose changes (a :class:`MapWorker`, as the map's chunks).
 
     ``load_view()``: returns an :class:`avgs.render.listener_view.ListenerView` or None (run once, on
     the worker thread). ``timer``: a factory ``(ms, callback) -> object with start()/stop()``
@@ -421,9 +426,7 @@ class ListenerInset:
 
     def __init__(self, plotter: pv.Plotter, state: ViewerState, load_view: Callable[[], Any],
                  post: Callable[[Callable[[], None]], None] = _run_now, timer=None, settle_ms: int = 300,
-                 size: tuple[int, int] = (192, 144)):
-        from .newest import BACKGROUND_NICE, RenderWorker
-
+                 size: tuple[int, int] = (192, 144), audio_busy: Callable[[], bool] | None = None):
         self.plotter, self.state = plotter, state
         self.size = size
         self._post = post
@@ -434,9 +437,14 @@ class ListenerInset:
         self.shown_pose = None
         self._rep = None
         self.available = True
+        self.stopped = 0
+        "Renders abandoned for a newer pose."
         self._timer = None if timer is None else timer(settle_ms, self.request)
-        # G rasterised on the CPU takes tens of ms: at a lower priority, so it never slows a pose's filter
-        self.worker = RenderWorker(self._render, self._rendered, self._failed, name="avgs-inset", nice=BACKGROUND_NICE)
+
+        def gate() -> bool:  # G rasterised on the CPU takes tens of ms: never beside a pose's filter
+            return not state.interacting and (audio_busy is None or not audio_busy())
+
+        self.worker = MapWorker(self._compute, self._rendered, self._failed, gate=gate, name="avgs-inset")
         ev = state.events
         self._subscriptions = [(ev.pose, self._on_pose), (ev.interacting, self._on_pose)]
         for event, cb in self._subscriptions:
@@ -464,19 +472,30 @@ class ListenerInset:
             self._rep = None
 
     def _on_pose(self, _value: Any) -> None:
+        self.worker.cancel()  # the render in progress is of a pose already left
         if self._timer is not None:
             self._timer.start()
         else:
             self.request()
 
     # worker thread
-    def _render(self, request):
+    def _compute(self, request, cancelled):
+        from avgs.gaussians.composite import Stopped
+
         if not self._view_loaded:
             self._view, self._view_loaded = self._load_view(), True
         if self._view is None:
-            return None
+            yield None
+            return
+        if cancelled():  # waits for the sound; True when a newer pose came meanwhile
+            return
         listener, yaw = request
-        return request, self._view.render(listener, yaw, *self.size)
+        try:
+            image = self._view.render(listener, yaw, *self.size, stop=cancelled)
+        except Stopped:
+            self.stopped += 1
+            return
+        yield request, image
 
     def _rendered(self, seq, request, result) -> None:
         if result is None:
@@ -585,7 +604,7 @@ class MapControls:
         if scene.gaussians is not None and getattr(scene, "path", None) is not None:
             path = scene.path
             self.inset = ListenerInset(plotter, state, lambda: _load_listener_view(path), post=self._post,
-                                       timer=self._timer)
+                                       timer=self._timer, audio_busy=audio_busy)
 
     def teardown(self) -> None:
         for part in (self.view, self.inset):

@@ -185,6 +185,30 @@ def test_tiles_chunks_segments_and_image_edges_do_not_change_the_image(monkeypat
     assert (tiles8 - ref).abs().mean() < 1e-3  # only the cut tails beyond 3 sigma differ
 
 
+def test_a_render_asked_to_stop_is_abandoned_between_chunks_and_one_never_asked_is_unchanged():
+    from avgs.gaussians import composite as comp
+    from avgs.gaussians.projection import project_gaussians
+
+    means, quats, scales, opac, colors = random_cloud(200, seed=5)
+    K = intrinsics(50.0, 50.0, 37.0, 29.0)
+    ref, ref_a, _ = rasterize(means, quats, scales, opac, colors, EYE, K, 75, 57, backend="torch", tile_size=16)
+    asked = []
+    kept, kept_a, _ = rasterize(means, quats, scales, opac, colors, EYE, K, 75, 57, backend="torch", tile_size=16,
+                                stop=lambda: asked.append(1) or False)
+    assert asked and torch.equal(kept, ref) and torch.equal(kept_a, ref_a)  # asked, never stopped: the same image
+    p = project_gaussians(means, quats, scales, EYE, K, 75, 57)
+    calls = []
+
+    def stop_at_third() -> bool:
+        calls.append(1)
+        return len(calls) == 3
+
+    with pytest.raises(comp.Stopped):
+        comp.composite(p["means2d"], p["conics"], opac, colors, p["depths"], p["radii"], 75, 57, tile_size=16,
+                       chunk_elements=4096, stop=stop_at_third)
+    assert len(calls) == 3  # stopped at the third chunk, not at the end
+
+
 def test_gradients_across_segments_and_early_stops(monkeypatch):
     """Gaussians walked two at a time: twelve nearly opaque ones saturate the left tile, which
     stops early, while the right tile goes on; the backward pass carries the sum over later

@@ -135,6 +135,81 @@ def test_listener_inset_shows_g_from_the_listener(renderer):
         plotter.close()
 
 
+def test_listener_inset_waits_for_the_sound_and_renders_only_the_newest_pose(renderer):
+    """While the audio path is busy the inset's G render does not start; a pose change meanwhile
+    drops the old pose; once the sound is idle only the newest pose is rendered."""
+    import threading
+    import time
+
+    import pyvista as pv
+
+    from avgs.render.listener_view import ListenerView
+
+    view = ListenerView.load(DEMO)
+    rendered = []  # the yaws the inset rasterised G for
+
+    class Counting:
+        def render(self, listener, yaw, *size, stop=None):
+            rendered.append(yaw)
+            return view.render(listener, yaw, *size, stop=stop)
+
+    state = ViewerState(renderer.bounds, renderer.source, listener=(2.0, 2.0, 1.6), yaw=0.0)
+    busy = threading.Event()
+    busy.set()
+    plotter = pv.Plotter(off_screen=True, window_size=[400, 300])
+    try:
+        posted = []
+        inset = ListenerInset(plotter, state, Counting, post=posted.append, audio_busy=busy.is_set)
+        time.sleep(0.5)
+        assert rendered == [] and not inset.wait(0.0)  # held while the sound is made
+        state.set_yaw(90.0)  # the user turns: the held pose is dropped
+        state.set_yaw(180.0)
+        busy.clear()
+        assert inset.wait(60)
+        while posted:
+            posted.pop(0)()
+        assert rendered == [180.0] and inset.shown_pose[1] == 180.0
+        inset.close()
+    finally:
+        plotter.close()
+
+
+def test_listener_inset_abandons_a_render_when_the_pose_changes(renderer):
+    """A pose change during the render stops it at the next chunk of tiles (``stopped``); the new
+    pose is rendered instead."""
+    import threading
+
+    import pyvista as pv
+
+    from avgs.render.listener_view import ListenerView
+
+    view = ListenerView.load(DEMO)
+    state = ViewerState(renderer.bounds, renderer.source, listener=(2.0, 2.0, 1.6), yaw=0.0)
+    started, moved = threading.Event(), threading.Event()
+
+    class Turning:  # turns the listener from inside the first render's first chunk check
+        def render(self, listener, yaw, *size, stop=None):
+            def check():
+                if not started.is_set():
+                    started.set()
+                    state.set_yaw(45.0)
+                    moved.set()
+                return stop()
+            return view.render(listener, yaw, *size, stop=check)
+
+    plotter = pv.Plotter(off_screen=True, window_size=[400, 300])
+    try:
+        posted = []
+        inset = ListenerInset(plotter, state, Turning, post=posted.append)
+        assert moved.wait(60) and inset.wait(60)
+        while posted:
+            posted.pop(0)()
+        assert inset.stopped == 1 and inset.shown_pose[1] == 45.0
+        inset.close()
+    finally:
+        plotter.close()
+
+
 # -- the real window under Xvfb ------------------------------------------------------------
 
 

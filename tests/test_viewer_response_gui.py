@@ -159,6 +159,36 @@ def test_the_panel_shows_the_current_pose_response_and_follows_a_drag(qtbot, win
     assert w.response.isVisible() and np.array_equal(w.response.summary.impulse, w.live.heard.result.impulse)
 
 
+def test_a_pose_passed_through_is_shown_light_and_the_newest_in_full(qtbot, window):
+    """After a release the moves' filters still arrive while the released pose's is made: they are
+    shown without the T60 and at most every SHOW_MS, so the GUI thread leaves the CPU to the filter
+    the user waits for; the released pose's is shown at once, in full."""
+    import dataclasses
+
+    from avgs_viewer.audio_path import SHOW_MS
+
+    w = window
+    wait_shown(qtbot, w)
+    heard = w.live.heard
+    src, z = w.state.source, w.state.listener[2]
+    stale_pose = dataclasses.replace(heard.request.pose, listener=(float(src[0]) - 1.2, float(src[1]) + 0.4, float(z)))
+    stale_result = w.renderer.binaural_filter(stale_pose.listener, stale_pose.yaw, source=stale_pose.source)
+    passed = dataclasses.replace(heard, request=dataclasses.replace(heard.request, seq=w.live.seq - 1),
+                                 result=stale_result)
+    w.audio_path._on_rendered(passed)
+    timer = w.audio_path._show_timer
+    assert timer.isActive() and timer.interval() == SHOW_MS
+    w.live.heard = passed  # as if it were playing now
+    qtbot.waitUntil(lambda: not timer.isActive(), timeout=5000)
+    summary = w.response.summary
+    assert np.array_equal(summary.impulse, stale_result.impulse) and summary.t60_s is None  # light
+    w.live.heard = heard
+    w.audio_path._on_rendered(heard)  # the newest pose: at once, in full
+    assert timer.isActive() and timer.interval() == 0
+    qtbot.waitUntil(lambda: not timer.isActive(), timeout=5000)
+    assert np.array_equal(w.response.summary.impulse, heard.result.impulse) and w.response.summary.t60_s is not None
+
+
 def test_play_response_key_plays_the_response_once_then_the_clip(qtbot, window):
     w, e = window, window.engine
     w.output.close()  # no clock pulls the engine now: the test takes its blocks, as a sound card would

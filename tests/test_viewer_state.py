@@ -430,13 +430,19 @@ def test_binaural_filters_on_two_threads_equal_those_made_one_after_another():
 
 
 def test_a_background_worker_runs_at_a_lower_priority_than_the_process():
-    """The inset's and the map's threads yield the CPU to the sound: their nice value is the process's + 10."""
+    """The inset's and the map's thread (a MapWorker) yields the CPU to the sound: its nice value is the process's + 10."""
     import os
+
+    from avgs_viewer.propagation_view import MapWorker
 
     seen = []
     base = os.getpriority(os.PRIO_PROCESS, 0)
-    w = RenderWorker(lambda x: seen.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id())),
-                     lambda *a: None, nice=10)
+
+    def compute(request, cancelled):
+        seen.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
+        yield request
+
+    w = MapWorker(compute, lambda *a: None, name="avgs-inset")
     try:
         w.submit(1)
         assert w.wait_idle(5)

@@ -18,6 +18,7 @@ walked in short segments so that tiles whose pixels have all saturated stop earl
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from torch.autograd.function import once_differentiable
@@ -189,6 +190,10 @@ def tile_lists(means2d, radii, depths, width: int, height: int, tile_size: int):
     return gauss, starts, counts
 
 
+class Stopped(Exception):
+    """An image abandoned because the caller's ``stop()`` returned True (:func:`composite`)."""
+
+
 def _chunks(counts: torch.Tensor, pixels: int, budget: int) -> list[tuple[torch.Tensor, int]]:
     """Non-empty tiles grouped as ``(tile ids, longest list)``, longest lists first, each
     group's ``tiles x longest x pixels`` at most ``budget`` (a single tile may exceed it)."""
@@ -218,11 +223,14 @@ def composite(
     background: torch.Tensor | None = None,
     tile_size: int = 16,
     chunk_elements: int = 1 << 22,
+    stop: Callable[[], bool] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Blend projected Gaussians into an image.
 
     Args: ``means2d [N, 2]``, ``conics [N, 3]``, ``opacities [N]`` in [0, 1],
     ``colors [N, C]``, ``depths [N]``, ``radii [N]`` (0 = culled), ``background [C]`` or None (zeros).
+    ``stop``: called before each chunk of tiles; when it returns True the image is abandoned
+    (:class:`Stopped` is raised). It may also block, to pause the work.
     Returns ``image [H, W, C]`` and ``alpha [H, W]`` (1 - final transmittance).
     """
     dev, dtype, C = colors.device, colors.dtype, colors.shape[-1]
@@ -241,6 +249,8 @@ def composite(
         basis = torch.stack([x * x, x * y, y * y, x, y, torch.ones_like(x)])  # [6, P]
         ids_all, rgb_all, acc_all = [], [], []
         for tiles, k in _chunks(counts, P, chunk_elements):
+            if stop is not None and stop():
+                raise Stopped("composite: stopped by the caller")
             slot = torch.arange(k, device=dev)
             pos = starts[tiles, None] + slot  # [Tc, K]
             valid = slot < counts[tiles, None]

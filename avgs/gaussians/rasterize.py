@@ -14,6 +14,7 @@ up to gsplat's tile culling of far tails (see ``tests/test_gaussians.py``, marke
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from typing import Literal
 
 import torch
@@ -76,6 +77,7 @@ def rasterize(
     far_plane: float = 1e10,
     eps2d: float = 0.3,
     tile_size: int | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """Render ``N`` Gaussians into an ``height x width`` RGB image, differentiably.
 
@@ -97,6 +99,9 @@ def rasterize(
         eps2d: low-pass dilation added to the projected covariance (pixels^2; 3D-GS: 0.3).
         tile_size: tile edge in pixels; None: 16 for gsplat (its default), 8 for torch (about
             1.4x faster on a CPU than 16: a tighter cover of each Gaussian's box).
+        stop: torch back end only: called between chunks of tiles; when it returns True the
+            render is abandoned with :class:`avgs.gaussians.composite.Stopped` (a viewer's
+            background render gives way to a newer pose this way). gsplat renders in one call.
 
     Returns:
         ``rgb [H, W, 3]``, ``alpha [H, W]`` (accumulated opacity), and ``aux``: ``means2d``
@@ -133,12 +138,12 @@ def rasterize(
     kw = dict(near_plane=near_plane, far_plane=far_plane, eps2d=eps2d, tile_size=tile_size)
     if which == "gsplat":
         return _rasterize_gsplat(*args, **kw)
-    return _rasterize_torch(*args, **kw)
+    return _rasterize_torch(*args, **kw, stop=stop)
 
 
 def _rasterize_torch(
     means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, background,
-    *, near_plane, far_plane, eps2d, tile_size,
+    *, near_plane, far_plane, eps2d, tile_size, stop=None,
 ):  # fmt: skip
     proj = project_gaussians(means, quats, scales, viewmat, K, width, height, near_plane, far_plane, eps2d)
     radii = proj["radii"]
@@ -149,7 +154,8 @@ def _rasterize_torch(
             rgb = rgb.index_put((vis,), sh_colors(sh_degree, colors[vis], means[vis], camera_center(viewmat)))
         colors = rgb
     image, alpha = composite(
-        proj["means2d"], proj["conics"], opacities, colors, proj["depths"], radii, width, height, background, tile_size
+        proj["means2d"], proj["conics"], opacities, colors, proj["depths"], radii, width, height, background, tile_size,
+        stop=stop,
     )
     aux = {
         "means2d": proj["means2d"],

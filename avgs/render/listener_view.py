@@ -62,8 +62,11 @@ class ListenerView:
         return len(self.model)
 
     def render(self, listener, yaw: float, width: int = 192, height: int = 144, fov_y: float = DEFAULT_FOV_Y,
-               background=(0.0, 0.0, 0.0)) -> np.ndarray:
-        """RGB ``[height, width, 3]`` uint8 of G seen from ``listener`` (world [3]) facing ``yaw`` degrees."""
+               background=(0.0, 0.0, 0.0), stop=None) -> np.ndarray:
+        """RGB ``[height, width, 3]`` uint8 of G seen from ``listener`` (world [3]) facing ``yaw`` degrees.
+
+        ``stop``: called between chunks of tiles on the CPU; True abandons the image with
+        :class:`avgs.gaussians.composite.Stopped` (the explorer's inset gives way to the sound so)."""
         from avgs.gaussians.cameras import intrinsics_from_fov, viewmat_from_c2w
         from avgs.gaussians.rasterize import rasterize
 
@@ -76,5 +79,5 @@ class ListenerView:
         bg = torch.as_tensor(background, dtype=torch.float32, device=self.device)
         with torch.inference_mode():
             rgb, _, _ = rasterize(g.means, g.quats, g.scales, g.opacities, g.sh, viewmat, K, int(width), int(height),
-                                  background=bg)
+                                  background=bg, stop=stop)
         return (rgb.clamp(0.0, 1.0) * 255.0 + 0.5).to(torch.uint8).cpu().numpy()
