@@ -1,4 +1,5 @@
-"""How many CPU threads torch uses in one ``avgs`` process.
+"""How many CPU threads torch uses in one ``avgs`` process, and how work asked for on one
+thread is given up when its caller no longer wants it (:class:`Stopped`).
 
 A render or a training step is many small operations; two threads waiting on each other
 on a busy two-core machine made stage 2 about 20x slower than one thread (0.27 against 6
@@ -10,6 +11,11 @@ number of cores less the 1-minute load average, at least one.
 from __future__ import annotations
 
 import os
+
+
+class Stopped(Exception):
+    """Work abandoned because its caller's ``stop()`` returned True (a render of a pose already left:
+    :meth:`avgs.render.renderer.SceneRenderer.binaural_filter`, :func:`avgs.gaussians.rasterize.rasterize`)."""
 
 
 def free_cores() -> int:

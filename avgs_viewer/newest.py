@@ -13,6 +13,8 @@ import os
 import threading
 from typing import Any, Callable, Generic, TypeVar
 
+from avgs.threads import Stopped
+
 BACKGROUND_NICE = 10
 "How much lower a background thread (the listener's-view inset, the propagation map) runs than the sound."
 
@@ -65,6 +67,8 @@ class RenderWorker(Generic[Request, Result]):
         "Requests overwritten before they started."
         self.superseded = 0
         "Results dropped because a newer one was delivered first (a spare lane's)."
+        self.stopped = 0
+        "Renders that gave up (``avgs.threads.Stopped``) because a newer request came (:meth:`stale`)."
         self.expedited = 0
         "Requests the spare lane ran."
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
@@ -85,6 +89,11 @@ class RenderWorker(Generic[Request, Result]):
             self._request, self._has_request = (self.submitted, request), True
             self._cond.notify()
             return self.submitted
+
+    def stale(self, seq: int) -> bool:
+        """Whether a request newer than number ``seq`` has been submitted: a render can give up then
+        by raising ``avgs.threads.Stopped`` (counted in :attr:`stopped`, not reported as an error)."""
+        return self.submitted > seq
 
     def expedite(self) -> bool:
         """Start the request waiting behind the one running now on the spare lane (if there is one
@@ -144,6 +153,8 @@ class RenderWorker(Generic[Request, Result]):
     def _run(self, seq: int, request: Request) -> None:
         try:
             result = self._render(request)
+        except Stopped:
+            self.stopped += 1
         except BaseException as exc:  # reported, never kills the thread
             if self._on_error is not None:
                 self._on_error(seq, request, exc)

@@ -480,7 +480,7 @@ class ListenerInset:
 
     # worker thread
     def _compute(self, request, cancelled):
-        from avgs.gaussians.composite import Stopped
+        from avgs.threads import Stopped
 
         if not self._view_loaded:
             self._view, self._view_loaded = self._load_view(), True

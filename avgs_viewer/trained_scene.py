@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, TypeAlias
+from typing import TYPE_CHECKING, Callable, Protocol, TypeAlias
 
 import numpy as np
 
@@ -101,9 +101,11 @@ class TrainedScene(Protocol):
         """Whether :meth:`render` differs from the pose's filter: a settled pose is then rendered anew."""
         ...
 
-    def binaural_filter(self, listener: Position, yaw: float, source: Position | None = None) -> RenderResult:
+    def binaural_filter(self, listener: Position, yaw: float, source: Position | None = None,
+                        stop: Callable[[], bool] | None = None) -> RenderResult:
         """The pose as a filter: ``impulse`` ``[2, L]`` float32 (channel 0 = left), the vicinity sets
-        ``listener_vicinity`` / ``source_vicinity`` (indices into :attr:`points`) and each ear's gains."""
+        ``listener_vicinity`` / ``source_vicinity`` (indices into :attr:`points`) and each ear's gains;
+        ``stop`` True after the network abandons it (``avgs.threads.Stopped``)."""
         ...
 
     def render(self, listener: Position, yaw: float, mono: np.ndarray, source: Position | None = None, *,

@@ -65,9 +65,10 @@ class Heard:
     voices: tuple = ()  # ((source id, RenderResult), ...) the other sources' filters, handed to the engine with it
 
 
-def pose_filter(renderer: TrainedScene, pose: Pose) -> RenderResult:
-    """The pose's binaural filter: a ``RenderResult`` whose ``impulse`` is [2, L] float32 (left first)."""
-    return renderer.binaural_filter(pose.listener, pose.yaw, source=pose.source)
+def pose_filter(renderer: TrainedScene, pose: Pose, stop: Callable[[], bool] | None = None) -> RenderResult:
+    """The pose's binaural filter: a ``RenderResult`` whose ``impulse`` is [2, L] float32 (left first);
+    ``stop``: as :meth:`~avgs_viewer.trained_scene.TrainedScene.binaural_filter`'s."""
+    return renderer.binaural_filter(pose.listener, pose.yaw, source=pose.source, stop=stop)
 
 
 class LiveAudio:
@@ -231,11 +232,17 @@ class LiveAudio:
         self.request(pose)
 
     def _render(self, request: PoseRequest) -> tuple[RenderResult, tuple]:
-        """The first source's filter and the other sources' ((id, RenderResult), ...); on either lane."""
+        """The first source's filter and the other sources' ((id, RenderResult), ...); on either lane.
+        A newer pose submitted meanwhile stops it after the network (the worker's ``stopped``): the CPU
+        goes to the pose the user is at."""
         pose = request.pose
-        voices = tuple((key, self.renderer.binaural_filter(pose.listener, pose.yaw, source=where))
+
+        def stale() -> bool:
+            return self.worker.stale(request.seq)
+
+        voices = tuple((key, self.renderer.binaural_filter(pose.listener, pose.yaw, source=where, stop=stale))
                        for key, where in request.voices)
-        return pose_filter(self.renderer, pose), voices
+        return pose_filter(self.renderer, pose, stale), voices
 
     def _deliver(self, seq: int, request: PoseRequest, rendered: tuple[RenderResult, tuple]) -> None:
         clip = self.engine.clip

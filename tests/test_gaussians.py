@@ -203,7 +203,9 @@ def test_a_render_asked_to_stop_is_abandoned_between_chunks_and_one_never_asked_
         calls.append(1)
         return len(calls) == 3
 
-    with pytest.raises(comp.Stopped):
+    from avgs.threads import Stopped
+
+    with pytest.raises(Stopped):
         comp.composite(p["means2d"], p["conics"], opac, colors, p["depths"], p["radii"], 75, 57, tile_size=16,
                        chunk_elements=4096, stop=stop_at_third)
     assert len(calls) == 3  # stopped at the third chunk, not at the end

@@ -208,7 +208,7 @@ def test_live_audio_takes_followed_poses_first_and_asks_once(tmp_path):
     from avgs_viewer.worker import LiveAudio
 
     class Filters:  # the renderer's interface: a pose's filter
-        def binaural_filter(self, listener, yaw, source=None):
+        def binaural_filter(self, listener, yaw, source=None, stop=None):
             return type("R", (), {"impulse": np.tile(np.float32([[1.0], [0.5]]), (1, 4))})()
 
     s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
@@ -408,6 +408,59 @@ def test_spare_lane_runs_the_expedited_request_at_once_and_drops_the_stale_resul
         w.close()
     assert results == [(2, 20)]
     assert w.superseded == 1 and w.expedited == 1 and w.rendered == 1 and not w.alive
+
+
+def test_a_moves_filter_made_stale_by_a_newer_pose_stops_and_the_newest_is_heard():
+    """While a move's filter is made the user moves on: the old one gives up at its stop check (the
+    worker's ``stopped``, no error reported), and the newest pose's filter is what the engine gets."""
+    from avgs.threads import Stopped
+    from avgs_viewer.audio import StreamEngine
+    from avgs_viewer.worker import LiveAudio
+
+    inside, moved_on = threading.Event(), threading.Event()
+    asked = []
+
+    class Filters:
+        def binaural_filter(self, listener, yaw, source=None, stop=None):
+            if listener[0] == 2.0:  # the move being made when the user moves on
+                inside.set()
+                assert moved_on.wait(10)
+            asked.append((listener[0], stop()))
+            if stop():
+                raise Stopped("stale")
+            return type("R", (), {"impulse": np.tile(np.float32([[1.0], [listener[0]]]), (1, 4))})()
+
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
+    engine = StreamEngine(22050, block=128)
+    errors = []
+    live = LiveAudio(Filters(), s, engine, np.zeros(2205, np.float32), on_error=lambda r, e: errors.append(e))
+    assert live.worker.wait_idle()
+    s.set_listener((2.0, 1.0, 1.5))
+    assert inside.wait(10)
+    s.set_listener((3.0, 1.0, 1.5))  # the user moved on
+    moved_on.set()
+    assert live.worker.wait_idle(10)
+    assert (2.0, True) in asked and (3.0, False) in asked
+    assert live.worker.stopped == 1 and errors == []
+    assert live.heard.request.pose.listener == (3.0, 1.0, 1.5) and engine.impulse[1, 0] == 3.0
+    live.close()
+
+
+def test_a_filter_asked_to_stop_gives_up_and_one_never_asked_is_unchanged():
+    from pathlib import Path
+
+    from avgs.render.renderer import SceneRenderer
+    from avgs.threads import Stopped
+
+    r = SceneRenderer.load(Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt")
+    lo, hi = r.bounds
+    p, src = lo + (hi - lo) * 0.3, lo + (hi - lo) * 0.7
+    asked = []
+    kept = r.binaural_filter(p, 30.0, source=src, stop=lambda: asked.append(1) or False)
+    assert asked == [1]  # asked once, after the network
+    np.testing.assert_array_equal(kept.impulse, r.binaural_filter(p, 30.0, source=src).impulse)
+    with pytest.raises(Stopped):
+        r.binaural_filter(p, 30.0, source=src, stop=lambda: True)
 
 
 def test_binaural_filters_on_two_threads_equal_those_made_one_after_another():

@@ -23,6 +23,8 @@ from collections.abc import Callable
 import torch
 from torch.autograd.function import once_differentiable
 
+from avgs.threads import Stopped
+
 ALPHA_MIN = 1.0 / 255.0
 "Smallest alpha a Gaussian contributes with (gsplat, 3D-GS)."
 T_MIN = 1e-4
@@ -190,10 +192,6 @@ def tile_lists(means2d, radii, depths, width: int, height: int, tile_size: int):
     return gauss, starts, counts
 
 
-class Stopped(Exception):
-    """An image abandoned because the caller's ``stop()`` returned True (:func:`composite`)."""
-
-
 def _chunks(counts: torch.Tensor, pixels: int, budget: int) -> list[tuple[torch.Tensor, int]]:
     """Non-empty tiles grouped as ``(tile ids, longest list)``, longest lists first, each
     group's ``tiles x longest x pixels`` at most ``budget`` (a single tile may exceed it)."""
@@ -230,7 +228,7 @@ def composite(
     Args: ``means2d [N, 2]``, ``conics [N, 3]``, ``opacities [N]`` in [0, 1],
     ``colors [N, C]``, ``depths [N]``, ``radii [N]`` (0 = culled), ``background [C]`` or None (zeros).
     ``stop``: called before each chunk of tiles; when it returns True the image is abandoned
-    (:class:`Stopped` is raised). It may also block, to pause the work.
+    (:class:`avgs.threads.Stopped` is raised). It may also block, to pause the work.
     Returns ``image [H, W, C]`` and ``alpha [H, W]`` (1 - final transmittance).
     """
     dev, dtype, C = colors.device, colors.dtype, colors.shape[-1]

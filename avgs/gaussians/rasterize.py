@@ -100,7 +100,7 @@ def rasterize(
         tile_size: tile edge in pixels; None: 16 for gsplat (its default), 8 for torch (about
             1.4x faster on a CPU than 16: a tighter cover of each Gaussian's box).
         stop: torch back end only: called between chunks of tiles; when it returns True the
-            render is abandoned with :class:`avgs.gaussians.composite.Stopped` (a viewer's
+            render is abandoned with :class:`avgs.threads.Stopped` (a viewer's
             background render gives way to a newer pose this way). gsplat renders in one call.
 
     Returns:

@@ -29,7 +29,7 @@ from avgs.acoustics.rir_model import RIRModel, ear_transfer, response_waveform
 from avgs.config import STFTConfig, SynthesisConfig
 from avgs.data.frame import SceneFrame, signed_direction
 from avgs.render.cells import early_frames, frame_interpolation, frame_nodes, listener_contexts
-from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames
+from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames, stopped
 
 RESPONSE_CHUNK = 32
 "Poses per batch of :meth:`ImpulseResponseTaskModel.predict_responses`."
@@ -53,11 +53,12 @@ class ImpulseResponseTaskModel:
         """Yaws (degrees, any shape) as the network reads them: radians of the yaw modulo 360, ``like``'s dtype and device."""
         return torch.as_tensor(np.radians(np.asarray(yaw_degrees, dtype=np.float64) % 360.0)).to(like.device, like.dtype)
 
-    def response(self, pose: Pose, impulse: bool = True) -> Response:
+    def response(self, pose: Pose, impulse: bool = True, stop=None) -> Response:
         """The predicted response (always: it is what the gains are read from) and its ear gains."""
         yaw = self._yaw([pose.yaw], pose.listener)  # [1]
         log_mag, lis_idx, src_idx = self.model.log_magnitudes(pose.listener, yaw, pose.source, self.cache,
                                                               self._source_context(pose.source))
+        stopped(stop)
         mag = self.model.magnitudes(log_mag.float()).cpu()  # [1, 2, F, N]
         rc = self.rir
         direct = self.model.direct_sound(pose.listener, yaw, pose.source)

@@ -66,7 +66,7 @@ class ListenerView:
         """RGB ``[height, width, 3]`` uint8 of G seen from ``listener`` (world [3]) facing ``yaw`` degrees.
 
         ``stop``: called between chunks of tiles on the CPU; True abandons the image with
-        :class:`avgs.gaussians.composite.Stopped` (the explorer's inset gives way to the sound so)."""
+        :class:`avgs.threads.Stopped` (the explorer's inset gives way to the sound so)."""
         from avgs.gaussians.cameras import intrinsics_from_fov, viewmat_from_c2w
         from avgs.gaussians.rasterize import rasterize
 

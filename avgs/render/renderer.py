@@ -42,6 +42,7 @@ import threading
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -325,10 +326,10 @@ class SceneRenderer:
         with self._lock, torch.inference_mode():
             return self._response(listener, yaw, source, impulse)[1]
 
-    def _response(self, listener, yaw: float, source, impulse: bool = False) -> tuple[Pose, Response]:
+    def _response(self, listener, yaw: float, source, impulse: bool = False, stop=None) -> tuple[Pose, Response]:
         """The pose and its task model's response (call under the lock and inference mode)."""
         pose = self._pose(listener, yaw, source)
-        return pose, self.task_model.response(pose, impulse)
+        return pose, self.task_model.response(pose, impulse, stop)
 
     @staticmethod
     def _result(pose: Pose, r: Response, **extra) -> RenderResult:
@@ -349,15 +350,17 @@ class SceneRenderer:
         with self._lock, torch.inference_mode():
             return self._result(*self._response(listener, yaw, source))
 
-    def binaural_filter(self, listener, yaw: float, source=None) -> RenderResult:
+    def binaural_filter(self, listener, yaw: float, source=None, stop: Callable[[], bool] | None = None) -> RenderResult:
         """The pose as a filter: :meth:`masks` and ``impulse``, its binaural impulse response ``[2, L]``
         (float32, channel 0 = left). Convolving a mono signal with it is :meth:`render` with
         ``method="filter"`` (the impulse-response task: with any synthesis), before the output's peak limit.
 
         Safe to call from several threads at once (the explorer's spare lane): it reads the model
-        and the pose-independent cache only, so it does not take the renderer's lock."""
+        and the pose-independent cache only, so it does not take the renderer's lock. ``stop``: asked
+        once the network has run; True abandons the pose with :class:`avgs.threads.Stopped` (the
+        explorer stops a move's filter that a newer pose has made stale)."""
         with torch.inference_mode():
-            pose, r = self._response(listener, yaw, source, impulse=True)
+            pose, r = self._response(listener, yaw, source, impulse=True, stop=stop)
             return self._result(pose, r, impulse=r.impulse)
 
     # -- sound ------------------------------------------------------------------------

@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Callable, Protocol
 
 import numpy as np
 import torch
 
 from avgs.acoustics.synthesis import Masks
 from avgs.config import SynthesisConfig
+from avgs.threads import Stopped
 
 HEADROOM_DB = 24.0
 "Most a pose's ear filter may gain over the input, in any frequency bin, and a render's peak over the input's peak (dB)."
@@ -90,9 +91,10 @@ class TaskModel(Protocol):
     source_aware: bool
     "Whether the model was trained on many source positions, so that a moved source is really heard."
 
-    def response(self, pose: Pose, impulse: bool = False) -> Response:
+    def response(self, pose: Pose, impulse: bool = False, stop: Callable[[], bool] | None = None) -> Response:
         """The pose's :class:`Response` within :data:`HEADROOM_DB` (a :class:`HeadroomLimited`
-        warning when scaled); ``impulse``: also its binaural impulse response."""
+        warning when scaled); ``impulse``: also its binaural impulse response. ``stop``: asked
+        between the network and the waveform; True abandons the pose (:class:`avgs.threads.Stopped`)."""
 
     def render(self, response: Response, x: np.ndarray, synthesis: SynthesisConfig,
                magnitudes: bool) -> tuple[np.ndarray, np.ndarray | None, float]:
@@ -165,6 +167,12 @@ def reach_frames(stft, synthesis: SynthesisConfig, decay: torch.Tensor | None = 
     tail = 0 if decay is None else tail_length(decay, MAX_REACH_FRAMES if n_frames is None else n_frames)
     window = -(-stft.n_fft // stft.hop_length)  # frames one window overlaps on each side, plus one
     return tail + window * (synthesis.iterations + 2) + context_frames
+
+
+def stopped(stop: Callable[[], bool] | None) -> None:
+    """Raise :class:`avgs.threads.Stopped` when ``stop`` is given and returns True (a pose already left)."""
+    if stop is not None and stop():
+        raise Stopped("the pose's render was stopped by its caller")
 
 
 def check_finite(tensors, where: str, what: str) -> None:
