@@ -207,12 +207,14 @@ class LiveAudio:
 
     def request(self, pose: Pose | None = None) -> int:
         """Compute the filter of ``pose`` (default: the state's current pose; called on every pose
-        change); its number. Any thread."""
+        change); its number. Any thread. It starts at once: the filter being made, now stale, gives
+        up at its next stop check, and this one runs on the spare lane meanwhile."""
         with self._lock:  # numbers follow submission order
             pose = self.state.pose if pose is None else pose
             first, voices = self._split(pose)
             self.seq = self.worker.submit(PoseRequest(first, self.worker.submitted + 1, time.perf_counter(), voices))
             self._requested = pose
+            self.worker.expedite()
             return self.seq
 
     def follow(self, following: bool) -> None:

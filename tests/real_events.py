@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+
+DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
+"The bundled demo scene (scripts/make_demo.sh)."
 
 
 def screen_xy(w, world) -> tuple[float, float]:
@@ -27,6 +32,18 @@ def open_window(qtbot, path):
     qtbot.waitActive(w)
     with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
         w.open_scene(path)
+    return w
+
+
+def demo_window(qtbot):
+    """The real window on the bundled demo, its first pose heard; the test is skipped without the demo.
+    The caller closes it (a fixture: ``w = demo_window(qtbot); yield w; w.close()``)."""
+    import pytest
+
+    if not DEMO.is_file():
+        pytest.skip("the bundled demo scene is missing (scripts/make_demo.sh)")
+    w = open_window(qtbot, DEMO)
+    qtbot.waitUntil(lambda: w.live is not None and w.live.heard is not None, timeout=30_000)
     return w
 
 

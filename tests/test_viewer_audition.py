@@ -5,26 +5,21 @@ lights the clip light (a real click puts it out) and holds its peak."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 pytest.importorskip("pytestqt")
 from PySide6 import QtCore, QtGui  # noqa: E402
 
-from real_events import open_window  # noqa: E402
+from real_events import demo_window  # noqa: E402
 from test_viewer_navigation import chord  # noqa: E402
 
 pytestmark = pytest.mark.gui
-DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
 
 
 @pytest.fixture
 def window(qtbot, x):
-    if not DEMO.is_file():
-        pytest.skip("the bundled demo scene is missing (scripts/make_demo.sh)")
-    w = open_window(qtbot, DEMO)
+    w = demo_window(qtbot)
     qtbot.waitUntil(lambda: w.live.heard is not None and w.engine.live_tag == w.live.seq, timeout=30_000)
     yield w
     w.close()

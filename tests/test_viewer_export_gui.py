@@ -4,8 +4,6 @@ exported from the window's own actions."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -14,18 +12,14 @@ av = pytest.importorskip("av")
 
 from avgs.export.flypath import read_path  # noqa: E402
 from avgs.export.flythrough import FlythroughConfig  # noqa: E402
-from real_events import drag_handle, open_window, screen_xy  # noqa: E402
+from real_events import demo_window, drag_handle, screen_xy  # noqa: E402
 
 pytestmark = pytest.mark.gui
-DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
 
 
 @pytest.fixture
 def window(qtbot, x):
-    if not DEMO.is_file():
-        pytest.skip("the bundled demo scene is missing (scripts/make_demo.sh)")
-    w = open_window(qtbot, DEMO)
-    qtbot.waitUntil(lambda: w.live is not None and w.live.heard is not None, timeout=30_000)
+    w = demo_window(qtbot)
     yield w
     w.close()
 

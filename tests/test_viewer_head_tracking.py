@@ -3,25 +3,20 @@ listener of the real window, and the filter the engine plays changes with it."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 pytest.importorskip("pytestqt")
 pytest.importorskip("pythonosc")
 
-from real_events import open_window  # noqa: E402
+from real_events import demo_window  # noqa: E402
 
 pytestmark = pytest.mark.gui
-DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
 
 
 @pytest.fixture
 def window(qtbot, x):
-    if not DEMO.is_file():
-        pytest.skip("the bundled demo scene is missing (scripts/make_demo.sh)")
-    w = open_window(qtbot, DEMO)
+    w = demo_window(qtbot)
     yield w
     w.close()
 

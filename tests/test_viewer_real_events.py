@@ -6,7 +6,6 @@ Timings live in the benchmark (``avgs-viewer --bench``), not here."""
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,17 +14,14 @@ pytest.importorskip("pytestqt")
 from PySide6 import QtCore, QtWidgets  # noqa: E402
 
 from avgs_viewer.window import MainWindow  # noqa: E402
-from real_events import open_window, screen_xy  # noqa: E402
+from real_events import demo_window, screen_xy  # noqa: E402
 
 pytestmark = pytest.mark.gui
-DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
 
 
 @pytest.fixture
 def window(qtbot, x):
-    if not DEMO.is_file():
-        pytest.skip("the bundled demo scene is missing (scripts/make_demo.sh)")
-    w = open_window(qtbot, DEMO)
+    w = demo_window(qtbot)
     settle(qtbot, w)
     yield w
     w.close()

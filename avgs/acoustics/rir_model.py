@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -39,6 +40,7 @@ from avgs.acoustics.rir_binauralizer import RIRBinauralizer
 from avgs.config import STFT, AcousticConfig, RIRConfig, STFTConfig, TrainConfig
 from avgs.dsp.phase_retrieval import FrameGrid, frame_grid, griffin_lim
 from avgs.data.frame import signed_direction
+from avgs.threads import Stopped
 
 PHASE_SEED = 20240515
 "Seed of the noise phase: fixed, so a predicted response is a deterministic function of the pose."
@@ -332,7 +334,8 @@ def _shared_for_ild(rest: torch.Tensor, start: torch.Tensor, share: torch.Tensor
 
 
 def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, phase: str = "griffin-lim",
-                      iterations: int = 4, momentum: float = 0.99, direct: DirectSound | None = None) -> torch.Tensor:
+                      iterations: int = 4, momentum: float = 0.99, direct: DirectSound | None = None,
+                      stop: Callable[[], bool] | None = None) -> torch.Tensor:
     """Waveforms ``[..., 2, length]`` float32 of predicted STFT magnitudes ``[..., 2, F, N]`` (>= 0).
 
     ``phase="noise"``: the magnitudes with the fixed-seed noise phase, inverse STFT;
@@ -347,6 +350,9 @@ def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, p
     ``direct`` (``[B]`` poses, ``mag [B, 2, F, N]``): the direct sound placed by geometry
     (:func:`place_direct_sound`): the ears share their phase over its first frames, then
     nothing arrives before distance / c, and the lagging ear hears it the ITD later.
+
+    ``stop``: asked before the direct sound is placed; True abandons the waveform
+    (:class:`avgs.threads.Stopped`: a caller that no longer wants it).
     """
     if phase not in ("noise", "griffin-lim"):
         raise ValueError(f"RIR phase must be 'noise' or 'griffin-lim', got {phase!r}")
@@ -368,4 +374,8 @@ def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, p
     got = (rebuilt * rebuilt.conj()).real.sum((-2, -1))  # [..., 2] the waveform's STFT energy
     gain = torch.where(got > 0, torch.sqrt(want / got.clamp_min(1e-30)), torch.zeros_like(got))
     y = y * gain[..., None]
-    return y if direct is None else place_direct_sound(y, direct, stft)
+    if direct is None:
+        return y
+    if stop is not None and stop():
+        raise Stopped("response_waveform: stopped by the caller")
+    return place_direct_sound(y, direct, stft)

@@ -62,7 +62,7 @@ class ImpulseResponseTaskModel:
         mag = self.model.magnitudes(log_mag.float()).cpu()  # [1, 2, F, N]
         rc = self.rir
         direct = self.model.direct_sound(pose.listener, yaw, pose.source)
-        h = response_waveform(mag, rc.length, self.stft, rc.phase, rc.phase_iterations, direct=direct)[0]  # [2, L]
+        h = response_waveform(mag, rc.length, self.stft, rc.phase, rc.phase_iterations, direct=direct, stop=stop)[0]  # [2, L]
         gains = ear_transfer(mag, self.stft).double()  # [1, 2, F]
         check_finite((h, gains), self.where, f"response at listener {tuple(pose.listener_world)}, yaw {pose.yaw!r}")
         peak_db = 10.0 * math.log10(max(float(gains.square().max()), 1e-300))

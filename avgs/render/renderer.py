@@ -357,7 +357,7 @@ class SceneRenderer:
 
         Safe to call from several threads at once (the explorer's spare lane): it reads the model
         and the pose-independent cache only, so it does not take the renderer's lock. ``stop``: asked
-        once the network has run; True abandons the pose with :class:`avgs.threads.Stopped` (the
+        between its stages; True abandons the pose with :class:`avgs.threads.Stopped` (the
         explorer stops a move's filter that a newer pose has made stale)."""
         with torch.inference_mode():
             pose, r = self._response(listener, yaw, source, impulse=True, stop=stop)

@@ -94,7 +94,8 @@ class TaskModel(Protocol):
     def response(self, pose: Pose, impulse: bool = False, stop: Callable[[], bool] | None = None) -> Response:
         """The pose's :class:`Response` within :data:`HEADROOM_DB` (a :class:`HeadroomLimited`
         warning when scaled); ``impulse``: also its binaural impulse response. ``stop``: asked
-        between the network and the waveform; True abandons the pose (:class:`avgs.threads.Stopped`)."""
+        between the stages (after the network, and in the waveform); True abandons the pose
+        (:class:`avgs.threads.Stopped`)."""
 
     def render(self, response: Response, x: np.ndarray, synthesis: SynthesisConfig,
                magnitudes: bool) -> tuple[np.ndarray, np.ndarray | None, float]:
