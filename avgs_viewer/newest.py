@@ -87,7 +87,7 @@ class RenderWorker(Generic[Request, Result]):
                 self.dropped += 1
             self.submitted += 1
             self._request, self._has_request = (self.submitted, request), True
-            self._cond.notify()
+            self._cond.notify_all()  # both lanes wait on it: notify() could wake only the spare, which ignores it
             return self.submitted
 
     def stale(self, seq: int) -> bool:

@@ -35,7 +35,7 @@ from .audition import Audition
 from .drag import DragController
 from .export_actions import ExportActions
 from .help import key as help_key
-from .loading import SceneLoader
+from .loading import SceneLoader, settle_heap
 from .head_tracking import DEFAULT_PORT, HeadTracker, Reference, tracked_position, tracked_yaw
 from .menus import MenuCommands, add_action, build_menus, help_dialog
 from .mouse import ViewMouse
@@ -394,6 +394,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.setWindowTitle(f"AV-GS explorer - {Path(path).name}")
         self.statusBar().showMessage(f"Loaded {path}: {len(renderer.points)} audio points", 5000)
         self.scene_loaded.emit(renderer)
+        settle_heap()  # no long collection walks the scene during a drag
 
     def _install_scene(self, renderer: TrainedScene) -> None:
         self._teardown_scene()

@@ -98,9 +98,11 @@ def test_prune_and_eval_outputs_past_the_limit(inputs, tmp_path, quick_scene):
 
 
 def test_train_whose_checkpoint_cannot_be_written_leaves_no_log(quick_scene, tmp_path):
+    from avgs.cli import main
+
     out = tmp_path / "scene.ckpt"
     base = ["train", quick_scene, "--out", out, "--quick", "--iterations", "4", "--no-progress"]
-    assert avgs(base + ["--stage1-only"])[0] == 0  # G first, unlimited: the run below reuses it
+    assert main([str(a) for a in base + ["--stage1-only"]]) == 0  # G first, here, unlimited: the run below reuses it
     stage1 = sorted(tmp_path.iterdir())
     line = assert_one_line(*avgs(base, limit=200_000), "train", out)
     assert "File too large" in line and "enforce fail" not in line
@@ -161,7 +163,10 @@ class _Trap:
 
 
 @pytest.mark.parametrize("kind", ["foreign scene", "code", "not a torch file"])
-def test_a_refused_stage1_file_leaves_no_log(quick_scene, tmp_path, kind):
+def test_a_refused_stage1_file_leaves_no_log(quick_scene, tmp_path, capsys, kind):
+    """In this process (no file size limit needed): ``avgs.cli.main``'s status and stderr."""
+    from avgs.cli import main
+
     given = tmp_path / "given" / "g.stage1.pt"
     given.parent.mkdir()
     if kind == "foreign scene":
@@ -173,8 +178,9 @@ def test_a_refused_stage1_file_leaves_no_log(quick_scene, tmp_path, kind):
         given.write_bytes(pickle.dumps({"format": "avgs-stage1"}))
     out_dir = tmp_path / "out"
     out_dir.mkdir()
-    status, err = avgs(["train", quick_scene, "--out", out_dir / "scene.ckpt", "--quick", "--stage1", given,
-                        "--no-progress"])
+    status = main([str(a) for a in ["train", quick_scene, "--out", out_dir / "scene.ckpt", "--quick", "--stage1",
+                                    given, "--no-progress"]])
+    err = capsys.readouterr().err
     lines = err.strip().splitlines()
     assert status == 2 and len(lines) == 1 and str(given) in lines[0], err
     assert "weights_only" not in err and "will likely succeed" not in err and "this ran" not in err

@@ -44,11 +44,13 @@ def small_config(iterations: int):
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
-    """A scene with 48 training poses and a model trained on it for 400 iterations."""
+    """A scene with 48 training poses and a model trained on it for 200 iterations."""
     root = tmp_path_factory.mktemp("scene")
     scene = write_scene(root, n_train=48, n_val=8, seed=0)
     out = root / "scene.ckpt"
-    final = train_scene(scene.scene_dir, out, small_config(400), progress=False, initial_points=random_points())
+    cfg = small_config(200)
+    cfg.eval_every = cfg.checkpoint_every = 50
+    final = train_scene(scene.scene_dir, out, cfg, progress=False, initial_points=random_points())
     return scene, out, final
 
 
@@ -57,13 +59,13 @@ def test_training_writes_checkpoint_log_and_curves(trained):
     log_file, png = log_paths(out)
     records = [json.loads(line) for line in log_file.read_text().splitlines()]
     stage2 = [r for r in records if r.get("stage") == "stage2"]
-    assert stage2[-1]["iteration"] == 400 and records[-1]["stage"] == "final"
-    assert [r["iteration"] for r in stage2 if "val_mag" in r] == [100, 200, 300, 400]
+    assert stage2[-1]["iteration"] == 200 and records[-1]["stage"] == "final"
+    assert [r["iteration"] for r in stage2 if "val_mag" in r] == [50, 100, 150, 200]
     assert all(math.isfinite(r["loss"]) and r["points"] > 0 for r in stage2)
     assert stage2[-1]["loss"] < stage2[0]["loss"]
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     ckpt = load_checkpoint(out)
-    assert ckpt["train_state"]["iteration"] == 400
+    assert ckpt["train_state"]["iteration"] == 200
     assert ckpt["metrics"]["val_mag"] == pytest.approx(final["val_mag"])
     assert len(ckpt["history"]) == len(records)
 
@@ -272,7 +274,7 @@ def test_avgs_train_both_stages_on_the_quick_scene(quick_scene, tmp_path):
     assert cli_main(args + ["--stage1-only"]) == 0
     stage1_file = out.with_name("scene.ckpt.stage1.pt")
     assert stage1_file.is_file() and not out.exists()
-    assert cli_main(args + ["--iterations", "400"]) == 0
+    assert cli_main(args + ["--iterations", "200"]) == 0
     ckpt = load_checkpoint(out)
     assert ckpt["gaussians"]["means"].shape[0] > 0
     history = ckpt["history"]
@@ -291,9 +293,11 @@ def test_avgs_train_both_stages_on_the_quick_scene(quick_scene, tmp_path):
     for y in (facing_north, facing_south, elsewhere):
         assert np.all(np.isfinite(y)) and y.shape == (2, len(mono))
     ild = lambda y: 10 * np.log10(np.mean(y[0] ** 2) / np.mean(y[1] ** 2))  # noqa: E731
-    # 400 iterations on 16 clips learn the direction, not yet the absolute balance: turning so the
-    # source moves from the right to the left raises the left ear against the right.
-    assert ild(facing_north) > ild(facing_south) + 1.0
+    # 200 iterations on 16 clips begin to learn the direction, not yet the absolute balance: turning
+    # so the source moves from the right to the left raises the left ear against the right (by
+    # 1.3 dB here, 2.4 dB at 400 iterations; test_trained_model_puts_the_louder_ear_towards_the_source
+    # holds the trained model to the side).
+    assert ild(facing_north) > ild(facing_south) + 0.5
     assert not np.allclose(facing_north, elsewhere, atol=1e-4)
 
 

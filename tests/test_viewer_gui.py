@@ -260,3 +260,18 @@ def test_a_position_kept_inside_the_scene_is_reported_in_the_status_bar(window):
     window.state.set_listener((hi[0] + 40.0, hi[1] - 0.5, 0.0))  # as a drag far past the wall would
     assert window.position_notice.text().startswith("listener kept inside the scene: (")
     assert f"-> ({hi[0]:.2f}," in window.position_notice.text()
+
+
+def test_a_shown_scene_is_frozen_out_of_the_collector_and_freed_when_the_next_one_comes(qtbot, window, trained_ckpt):
+    """After a load the scene's objects are frozen (no collection during a drag walks them); opening
+    another scene unfreezes them, and the first scene's renderer is freed (freezing leaks nothing)."""
+    import gc
+    import weakref
+
+    w = window
+    assert gc.get_freeze_count() > 10_000  # the scene, its VTK and Qt objects, the model
+    first = weakref.ref(w.renderer)
+    with qtbot.waitSignal(w.scene_loaded, timeout=60_000):
+        w.open_scene(trained_ckpt)
+    wait_render(qtbot, w)
+    assert first() is None and gc.get_freeze_count() > 10_000  # freed at the new scene's settle, which froze anew

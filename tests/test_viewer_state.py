@@ -410,6 +410,43 @@ def test_spare_lane_runs_the_expedited_request_at_once_and_drops_the_stale_resul
     assert w.superseded == 1 and w.expedited == 1 and w.rendered == 1 and not w.alive
 
 
+def test_the_newest_request_of_every_burst_is_rendered_with_both_lanes_waiting():
+    """Bursts of submissions, each expedited (as LiveAudio does), renders giving up when stale: the
+    last of every burst is rendered. Both lanes wait on one condition; a submission that woke only
+    the spare lane (which takes expedited work only) left it queued: 8 of 40 bursts lost it."""
+    import random
+
+    from avgs.threads import Stopped
+
+    rng = random.Random(0)
+    delivered = []
+    holder = {}
+
+    def render(seq):
+        for _ in range(4):
+            time.sleep(0.001)
+            if holder["w"].stale(seq):
+                raise Stopped("a newer request came")
+        return seq
+
+    w = RenderWorker(render, lambda s, q, r: delivered.append(s), spare=True)
+    holder["w"] = w
+    lost = 0
+    try:
+        for _ in range(40):
+            for _ in range(rng.randint(2, 12)):
+                seq = w.submit(w.submitted + 1)
+                w.expedite()
+                time.sleep(rng.uniform(0.0, 0.006))
+            if not w.wait_idle(1.0) or delivered[-1] != seq:
+                lost += 1
+                w.submit(w.submitted + 1)  # the next submission wakes the lane
+                w.wait_idle(1.0)
+    finally:
+        w.close()
+    assert lost == 0 and w.stopped > 0  # (bursts did overlap: stale renders gave up)
+
+
 def test_a_moves_filter_made_stale_by_a_newer_pose_stops_and_the_newest_is_heard():
     """While a move's filter is made the user moves on: the old one gives up at its stop check (the
     worker's ``stopped``, no error reported), and the newest pose's filter is what the engine gets."""

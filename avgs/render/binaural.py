@@ -29,7 +29,8 @@ from avgs.acoustics.synthesis import (Masks, SourceParts, ear_gains, ear_spectro
 from avgs.config import STFTConfig, SynthesisConfig
 from avgs.data.frame import SceneFrame
 from avgs.render.cells import ear_power, listener_contexts
-from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames, stopped
+from avgs.render.tasks import (HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames,
+                               stopped)
 
 RENDER_BLOCK_FRAMES = 2048
 "Frames per block when a long input is rendered (about 12 s at AV-NeRF's hop): memory stays bounded."

@@ -29,7 +29,8 @@ from avgs.acoustics.rir_model import RIRModel, ear_transfer, response_waveform
 from avgs.config import STFTConfig, SynthesisConfig
 from avgs.data.frame import SceneFrame, signed_direction
 from avgs.render.cells import early_frames, frame_interpolation, frame_nodes, listener_contexts
-from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames, stopped
+from avgs.render.tasks import (HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames,
+                               stopped)
 
 RESPONSE_CHUNK = 32
 "Poses per batch of :meth:`ImpulseResponseTaskModel.predict_responses`."
@@ -62,7 +63,8 @@ class ImpulseResponseTaskModel:
         mag = self.model.magnitudes(log_mag.float()).cpu()  # [1, 2, F, N]
         rc = self.rir
         direct = self.model.direct_sound(pose.listener, yaw, pose.source)
-        h = response_waveform(mag, rc.length, self.stft, rc.phase, rc.phase_iterations, direct=direct, stop=stop)[0]  # [2, L]
+        h = response_waveform(mag, rc.length, self.stft, rc.phase, rc.phase_iterations, direct=direct,
+                              stop=stop)[0]  # [2, L]
         gains = ear_transfer(mag, self.stft).double()  # [1, 2, F]
         check_finite((h, gains), self.where, f"response at listener {tuple(pose.listener_world)}, yaw {pose.yaw!r}")
         peak_db = 10.0 * math.log10(max(float(gains.square().max()), 1e-300))
