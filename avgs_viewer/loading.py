@@ -44,18 +44,20 @@ class SceneLoader(QtCore.QObject):
                 if collecting:
                     gc.enable()
 
-        gc.unfreeze()  # the scene shown until now may go (settle_heap froze it)
-        gc.collect()  # here, on the GUI thread, what earlier scenes and windows left behind
+        gc.collect()  # here, on the GUI thread, what was left behind since the last scene was settled
         threading.Thread(target=load, name="avgs-load", daemon=True).start()
 
 
 def settle_heap() -> None:
-    """Once a scene is shown (GUI thread): collect, then freeze what is left (``gc.freeze``).
+    """Once a scene is shown (GUI thread): unfreeze, collect, freeze what is left (``gc.freeze``).
 
     The scene's long-lived objects (VTK and Qt wrappers, torch modules, the points) then leave the
     collector's generations, and a collection during a drag, on whatever thread allocates, walks
     only what was made since. Sampled in the window on the bundled demo: full collections took
     100-200 ms and the first gen-1 collection after loading 94 ms, every Python thread (the
-    filter's included) stopped meanwhile. :meth:`SceneLoader.load` unfreezes before the next scene."""
+    filter's included) stopped meanwhile. The scene shown before, frozen at its own settle, stays
+    frozen while the next one loads (no collection on another thread can free its Qt or VTK
+    objects) and is freed here, on the GUI thread: one full collection a scene."""
+    gc.unfreeze()
     gc.collect()
     gc.freeze()

@@ -133,8 +133,9 @@ def test_a_cancelled_export_leaves_nothing(demo, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_the_viewer_renders_its_3d_view_along_a_path(demo, tmp_path):
-    """``avgs-viewer --flythrough``: the explorer's SceneView off screen; and bad input is one line."""
+def test_the_viewer_renders_its_3d_view_along_a_path(demo, tmp_path, capsys):
+    """``avgs-viewer --flythrough``: the explorer's SceneView off screen (its own process); and bad
+    input is one line (``avgs_viewer.app.main`` here: it is refused before any window or GL)."""
     path = tmp_path / "path.json"
     path.write_text(json.dumps(PATH))
     out = tmp_path / "view.mp4"
@@ -149,10 +150,12 @@ def test_the_viewer_renders_its_3d_view_along_a_path(demo, tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     frames = check_video(out, 10, (128, 96), 2.0, demo.sample_rate)
     assert np.abs(frames[0].astype(int) - frames[-1]).mean() > 0.5  # the listener's handle moved
-    bad = subprocess.run([sys.executable, "-m", "avgs_viewer.app", str(DEMO), "--flythrough", str(path),
-                          "--video", str(tmp_path / "odd.mp4"), "--size", "130", "97"],
-                         capture_output=True, text=True, timeout=300)
-    assert bad.returncode == 2 and "even whole number" in bad.stderr and bad.stderr.count("\n") == 1
+    from avgs_viewer.app import main as viewer_main
+
+    status = viewer_main([str(DEMO), "--flythrough", str(path), "--video", str(tmp_path / "odd.mp4"),
+                          "--size", "130", "97"])
+    err = capsys.readouterr().err
+    assert status == 2 and "even whole number" in err and err.count("\n") == 1
     assert not (tmp_path / "odd.mp4").exists()
 
 
