@@ -168,6 +168,11 @@ def test_the_meters_repaint_on_screen_without_recomposing_the_3d_view(qtbot, win
         w.move(w.x() - max(0, g.x() + meter.width() - screen.width() + 10),
                w.y() - max(0, g.y() + meter.height() - screen.height() + 10))
         qtbot.waitUntil(on_screen, timeout=5000)
+    w.raise_()  # above any window an earlier test in this process left on the screen
+    w.activateWindow()
+    qtbot.waitActive(w)
+    centre = meter.mapToGlobal(meter.rect().center())
+    qtbot.waitUntil(lambda: QtWidgets.QApplication.widgetAt(centre) is meter, timeout=5000)
     w.meter_timer.stop()
     w.panel.show_meters(-60.0, -60.0)
     qtbot.wait(500)
