@@ -132,18 +132,27 @@ def run_jobs(job, n: int, init, initargs: tuple, workers: int = 2, progress: boo
     workers = max(1, min(int(workers), n))
     if workers == 1:
         init(*initargs)
-        results = map(job, range(n))
-        pool = contextlib.nullcontext()
-    else:
-        method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-        pool = mp.get_context(method).Pool(workers, initializer=init, initargs=initargs)
-        results = pool.imap_unordered(job, range(n))
-    try:
-        with pool:
-            for result in results:
+        try:
+            for result in map(job, range(n)):
                 yield result
                 bar.update(1)
+        finally:
+            bar.close()
+        return
+    method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+    pool = mp.get_context(method).Pool(workers, initializer=init, initargs=initargs)
+    try:
+        for result in pool.imap_unordered(job, range(n)):
+            yield result
+            bar.update(1)
+        # Done: the workers are told to stop and exit on their own. Pool.terminate (the with
+        # block's exit) SIGTERMs them instead, and a worker that the signal finds waiting for the
+        # task queue's lock could be left waiting, the parent joining it for ever (seen once in a run
+        # of the test suite, the parent a multi-threaded test process).
+        pool.close()
+        pool.join()
     finally:
+        pool.terminate()  # stopped early (an error, Ctrl+C, the caller gone): no wait for the jobs left
         bar.close()
 
 
