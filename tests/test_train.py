@@ -112,7 +112,7 @@ def test_same_seed_same_weights_on_cpu(tmp_path):
     scene = write_scene(tmp_path, n_train=12, n_val=4, seed=2)
     weights = []
     for run, seed in enumerate((5, 5, 6)):
-        cfg = small_config(45)
+        cfg = small_config(45 if run < 2 else 1)  # the other seed: its first step differs already
         cfg.seed = seed
         out = tmp_path / f"s{run}.ckpt"
         train_scene(scene.scene_dir, out, cfg, progress=False, initial_points=random_points(200))
