@@ -11,11 +11,19 @@ number of cores less the 1-minute load average, at least one.
 from __future__ import annotations
 
 import os
+from typing import Callable
 
 
 class Stopped(Exception):
     """Work abandoned because its caller's ``stop()`` returned True (a render of a pose already left:
     :meth:`avgs.render.renderer.SceneRenderer.binaural_filter`, :func:`avgs.gaussians.rasterize.rasterize`)."""
+
+
+def stopped(stop: Callable[[], bool] | None, what: str) -> None:
+    """Raise :class:`Stopped` (naming ``what``) when ``stop`` is given and returns True: the check
+    a long piece of work makes between its stages."""
+    if stop is not None and stop():
+        raise Stopped(f"{what}: stopped by its caller")
 
 
 def free_cores() -> int:

@@ -25,6 +25,7 @@ from avgs.acoustics.interaural import fit_scale, woodworth_shape
 from avgs.data.frame import signed_direction
 from avgs.data.rir import RIRScene, RIRSet
 from avgs.evaluation import spatial
+from avgs.train.impulse_responses import speed_of_sound
 
 LATE_S = 1e-3
 "A true onset this much after distance / c: the response is behind a wall (scripts/rir_onset_split.py)."
@@ -52,7 +53,7 @@ def main(argv: list[str]) -> int:
         return 2
     warnings.simplefilter("ignore")
     scene = RIRScene(argv[0])
-    speed = float((scene.metadata or {}).get("rir", {}).get("speed_of_sound", 343.0))
+    speed = speed_of_sound(scene)
     train = scene.responses("train")
     t = cues(scene, train, speed)
     pairs: dict[tuple[int, int], list[int]] = {}

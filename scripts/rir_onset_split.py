@@ -18,6 +18,7 @@ import numpy as np
 from avgs.data.rir import RIRScene
 from avgs.evaluation import spatial
 from avgs.evaluation.impulse_response import load_method, predict
+from avgs.train.impulse_responses import speed_of_sound
 
 LATE_S = 1e-3
 "A true onset this much after distance / c (seconds): the response is behind a wall."
@@ -30,7 +31,7 @@ def main(argv: list[str]) -> int:
     warnings.simplefilter("ignore")
     scene = RIRScene(argv[0])
     fs = scene.sample_rate
-    speed = float((scene.metadata or {}).get("rir", {}).get("speed_of_sound", 343.0))
+    speed = speed_of_sound(scene)
     method = load_method("ckpt:" + argv[1])
     method = method.for_scene(scene) if hasattr(method, "for_scene") else method
     train = scene.responses("train")

@@ -23,13 +23,14 @@ from avgs.data.rir import RIRScene
 from avgs.evaluation import metrics, spatial
 from avgs.evaluation.impulse_response import load_method, predict
 from avgs.io.atomic import write_text
+from avgs.train.impulse_responses import speed_of_sound
 
 LATE_S = 1e-3
 
 
 def scores(scene: RIRScene, ckpt: str, split: str) -> dict[str, dict[str, float]]:
     fs = scene.sample_rate
-    speed = float((scene.metadata or {}).get("rir", {}).get("speed_of_sound", 343.0))
+    speed = speed_of_sound(scene)
     method = load_method("ckpt:" + ckpt)
     method = method.for_scene(scene) if hasattr(method, "for_scene") else method
     query = scene.responses(split)

@@ -40,7 +40,7 @@ from avgs.acoustics.rir_binauralizer import RIRBinauralizer
 from avgs.config import STFT, AcousticConfig, RIRConfig, STFTConfig, TrainConfig
 from avgs.dsp.phase_retrieval import FrameGrid, frame_grid, griffin_lim
 from avgs.data.frame import signed_direction
-from avgs.threads import Stopped
+from avgs.threads import stopped
 
 PHASE_SEED = 20240515
 "Seed of the noise phase: fixed, so a predicted response is a deterministic function of the pose."
@@ -376,6 +376,5 @@ def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, p
     y = y * gain[..., None]
     if direct is None:
         return y
-    if stop is not None and stop():
-        raise Stopped("response_waveform: stopped by the caller")
+    stopped(stop, "response_waveform")
     return place_direct_sound(y, direct, stft)

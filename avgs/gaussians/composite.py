@@ -23,7 +23,7 @@ from collections.abc import Callable
 import torch
 from torch.autograd.function import once_differentiable
 
-from avgs.threads import Stopped
+from avgs.threads import stopped
 
 ALPHA_MIN = 1.0 / 255.0
 "Smallest alpha a Gaussian contributes with (gsplat, 3D-GS)."
@@ -247,8 +247,7 @@ def composite(
         basis = torch.stack([x * x, x * y, y * y, x, y, torch.ones_like(x)])  # [6, P]
         ids_all, rgb_all, acc_all = [], [], []
         for tiles, k in _chunks(counts, P, chunk_elements):
-            if stop is not None and stop():
-                raise Stopped("composite: stopped by the caller")
+            stopped(stop, "composite")
             slot = torch.arange(k, device=dev)
             pos = starts[tiles, None] + slot  # [Tc, K]
             valid = slot < counts[tiles, None]

@@ -29,8 +29,8 @@ from avgs.acoustics.synthesis import (Masks, SourceParts, ear_gains, ear_spectro
 from avgs.config import STFTConfig, SynthesisConfig
 from avgs.data.frame import SceneFrame
 from avgs.render.cells import ear_power, listener_contexts
-from avgs.render.tasks import (HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames,
-                               stopped)
+from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames
+from avgs.threads import stopped
 
 RENDER_BLOCK_FRAMES = 2048
 "Frames per block when a long input is rendered (about 12 s at AV-NeRF's hop): memory stays bounded."
@@ -63,7 +63,7 @@ class BinauralTaskModel:
 
     def response(self, pose: Pose, impulse: bool = False, stop=None) -> Response:
         masks = self.model.masks(pose.listener, pose.theta, pose.source, self._source_context(pose.source), self.cache)
-        stopped(stop)
+        stopped(stop, "the pose's response")
         check_finite((masks.mixture, masks.difference, masks.reverb, masks.decay), self.where,
                      f"masks at listener {tuple(pose.listener_world)}, yaw {pose.yaw!r}")
         m, power = self._within_headroom(masks)

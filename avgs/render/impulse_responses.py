@@ -29,8 +29,8 @@ from avgs.acoustics.rir_model import RIRModel, ear_transfer, response_waveform
 from avgs.config import STFTConfig, SynthesisConfig
 from avgs.data.frame import SceneFrame, signed_direction
 from avgs.render.cells import early_frames, frame_interpolation, frame_nodes, listener_contexts
-from avgs.render.tasks import (HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames,
-                               stopped)
+from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, check_finite, peak, reach_frames
+from avgs.threads import stopped
 
 RESPONSE_CHUNK = 32
 "Poses per batch of :meth:`ImpulseResponseTaskModel.predict_responses`."
@@ -59,7 +59,7 @@ class ImpulseResponseTaskModel:
         yaw = self._yaw([pose.yaw], pose.listener)  # [1]
         log_mag, lis_idx, src_idx = self.model.log_magnitudes(pose.listener, yaw, pose.source, self.cache,
                                                               self._source_context(pose.source))
-        stopped(stop)
+        stopped(stop, "the pose's response")
         mag = self.model.magnitudes(log_mag.float()).cpu()  # [1, 2, F, N]
         rc = self.rir
         direct = self.model.direct_sound(pose.listener, yaw, pose.source)

@@ -22,7 +22,6 @@ import torch
 
 from avgs.acoustics.synthesis import Masks
 from avgs.config import SynthesisConfig
-from avgs.threads import Stopped
 
 HEADROOM_DB = 24.0
 "Most a pose's ear filter may gain over the input, in any frequency bin, and a render's peak over the input's peak (dB)."
@@ -168,12 +167,6 @@ def reach_frames(stft, synthesis: SynthesisConfig, decay: torch.Tensor | None = 
     tail = 0 if decay is None else tail_length(decay, MAX_REACH_FRAMES if n_frames is None else n_frames)
     window = -(-stft.n_fft // stft.hop_length)  # frames one window overlaps on each side, plus one
     return tail + window * (synthesis.iterations + 2) + context_frames
-
-
-def stopped(stop: Callable[[], bool] | None) -> None:
-    """Raise :class:`avgs.threads.Stopped` when ``stop`` is given and returns True (a pose already left)."""
-    if stop is not None and stop():
-        raise Stopped("the pose's render was stopped by its caller")
 
 
 def check_finite(tensors, where: str, what: str) -> None:
