@@ -5,7 +5,7 @@
 #   device run: bash scripts/device/h100.sh    (NOTEST=1 skips the tests)
 #     carry: .gpu/whl .gpu/whl2 .gpu/data/rawhrtf/office_0 .gpu/data/rawhrtf/position.json
 set -u
-python3 -m pip install -q --no-deps --no-index --find-links .gpu/whl --find-links .gpu/whl2 soundfile tqdm cffi pycparser gsplat rich markdown-it-py mdurl pygments pytest pluggy iniconfig 2>&1 | grep -v WARNING | tail -2
+python3 -m pip install -q --no-deps --no-index --find-links .gpu/whl --find-links .gpu/whl2 soundfile cffi pycparser pyroomacoustics gsplat 2>&1 | grep -v WARNING | tail -2
 export PYTHONPATH=$PWD
 python3 -c "import torch, gsplat; print(torch.__version__, gsplat.__version__, torch.cuda.get_device_name(0))"
 [ -n "${NOTEST:-}" ] || python3 -m pytest -q -m cuda tests/test_gaussians.py -p no:cacheprovider 2>&1 | tail -8
