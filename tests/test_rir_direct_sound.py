@@ -200,3 +200,20 @@ def test_a_wall_of_points_blocks_the_straight_path_and_the_threshold_is_fitted()
     t = fit_blocked_count(noisy, labels)
     assert t is not None and np.all((noisy >= t) == ~labels)
     assert fit_blocked_count(noisy, np.ones(12, bool)) is None  # no pair behind a wall: nothing to tell apart
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_the_direct_sound_is_placed_on_cuda_as_on_the_cpu():
+    """Responses and poses on the GPU (training's final scores, ``--device cuda``): the direct sound is
+    placed on the CPU and the result comes back on the GPU, equal to the CPU's, the head shadow's ILD included."""
+    rng = np.random.default_rng(3)
+    L = 6000
+    h = torch.from_numpy(rng.standard_normal((2, 2, L)) * np.exp(-np.arange(L) / 1200.0)).float()
+    direct = DirectSound(torch.tensor([0.008, 0.012]), torch.tensor([[0.0, 3.0e-4], [2.0e-4, 0.0]]),
+                         torch.tensor([6.0, float("nan")]))
+    on_cpu = place_direct_sound(h, direct, STFT)
+    gpu = torch.device("cuda")
+    on_gpu = place_direct_sound(h.to(gpu), DirectSound(*(t.to(gpu) for t in (direct.arrival, direct.delays, direct.ild))), STFT)
+    assert on_gpu.device.type == "cuda"
+    assert torch.allclose(on_gpu.cpu(), on_cpu, atol=1e-6)

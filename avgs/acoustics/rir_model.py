@@ -255,7 +255,8 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
     out = y.double()
     out[..., :lo] = 0.0
     out[..., lo:hi] = gated * (1.0 + (gain[..., None] - 1.0) * back)
-    return sharpen_direct_sound(out, start, fs, direct.ild).to(device=h.device, dtype=h.dtype)
+    ild = None if direct.ild is None else direct.ild.detach().double().cpu()  # [B] dB, beside start on the CPU
+    return sharpen_direct_sound(out, start, fs, ild).to(device=h.device, dtype=h.dtype)
 
 
 def fractional_delay(x: torch.Tensor, samples: torch.Tensor) -> torch.Tensor:
