@@ -3,6 +3,7 @@ and ``--no-context`` (mean over seeds ± their standard deviation), every metric
 ``avgs eval --task rir`` on both splits, and each run's stage-2 iterations and time.
 
     tar -xzf results.tgz -C /tmp/rd && python scripts/rir_defaults_table.py /tmp/rd/w
+    python scripts/rir_defaults_table.py benchmarks/h200/rir_defaults      # the run kept in the repository
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ def cell(values: list[float], fmt: str) -> str:
 def training(folder: Path) -> list[str]:
     """One line per run: its stage-2 iterations and seconds (the log's last stage-2 record)."""
     lines = []
-    for log in sorted(folder.glob("*-s*.ckpt.log.jsonl")):
+    for log in sorted(folder.glob("*-s*.log.jsonl")):
         recs = [json.loads(line) for line in log.read_text().splitlines() if line.strip()]
         stage2 = [r for r in recs if r.get("stage") == "stage2" and "seconds" in r]
         stage1 = [r for r in recs if r.get("stage") == "final"]

@@ -3,7 +3,7 @@
 # frames, then stage 2: width 256, batch 4, 20k points from G, the paper's schedule) on the
 # two-room preset: AV-GS and --no-context, seeds 0-2, six runs side by side on one GPU from one
 # shared stage 1; the checkpoints and the baselines scored by `avgs eval --task rir --split both`;
-# the CUDA tests beside stage 1.
+# the CUDA tests beside stage 2.
 #   .venv/bin/python scripts/device/prepare.py data/rir/two_rooms --frames
 #   device run (carry .gpu): bash scripts/device/rir_defaults.sh [END_S]
 # END_S (default 470): seconds after the start by which the scores are written. The stage-2
@@ -32,11 +32,12 @@ mkdir -p "$W"
 S=$OUT/summary.txt
 { nvidia-smi -L; nproc; $PY -c "import torch; print('torch', torch.__version__, torch.cuda.is_available() and torch.cuda.get_device_name(0))"; } 2>&1 | tee -a "$S"
 
-$PY -m pytest -q -m cuda tests/test_gaussians.py -p no:cacheprovider > "$W/cuda_tests.txt" 2>&1 &
-TESTS=$!
 OMP_NUM_THREADS=4 $A train $D --task rir --out "$W/stage1.ckpt" --stage1-only --device $DEV ${STAGE1_ARGS:-} --no-progress > "$W/stage1.log" 2>&1 \
   || { echo "stage 1 on $DEV failed:"; tail -20 "$W/stage1.log"; } | tee -a "$S"
 echo "stage 1 done at $(now) s" | tee -a "$S"
+# The CUDA tests once stage 1 has built gsplat's extension (two builds at once share its folder and fail).
+$PY -m pytest -q -m cuda tests/ -p no:cacheprovider > "$W/cuda_tests.txt" 2>&1 &
+TESTS=$!
 G="--stage1 $W/stage1.ckpt.stage1.pt"
 [ -f "$W/stage1.ckpt.stage1.pt" ] || { G="--init sfm --no-gaussians"; echo "no stage 1: G_a from scene.json's surfaces" | tee -a "$S"; }
 
