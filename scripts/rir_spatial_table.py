@@ -1,0 +1,122 @@
+"""The impulse-response task's table with the direction cues (docs/results.md "Impulse responses"):
+T60, C50, EDT and the onset, direct-sound ITD, early ILD and lateralisation of ``avgs eval --task rir``,
+overall (the mean of the environments' means), for the baselines and for each sweep setting's
+checkpoints (mean over seeds ± their standard deviation), each checkpoint also heard "before": the
+same weights with the direct sound left to B (``direct_sound`` and ``direct_ild`` off: a fixed-seed
+noise phase from t = 0, what the task did before it placed the direct sound by geometry).
+
+    avgs sweep --data data/rir --out runs/rir_spatial --seeds 0 1 2 --eval-split none \\
+        --common="--quick --rir-width 256 --iterations 400" --setting avgs="--task rir" \\
+        --setting no-context="--task rir --no-context"
+    avgs eval --task rir data/rir --methods nearest,linear --split both --out runs/rir_spatial/baselines.json
+    python scripts/rir_spatial_table.py data/rir runs/rir_spatial        # scores the checkpoints, prints markdown
+
+Every checkpoint's scores go to ``<run folder>/spatial.json`` (made once: a second call reads them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+from avgs.io.checkpoint import load_checkpoint, save_checkpoint
+
+METRICS = (("t60_pct", "T60 %", "{:.1f}"), ("c50_db", "C50 dB", "{:.2f}"), ("edt_s", "EDT s", "{:.3f}"),
+           ("onset_ms", "onset ms", "{:.2f}"), ("itd_us", "ITD us", "{:.0f}"), ("ild_db", "ILD dB", "{:.2f}"),
+           ("lat_pct", "LAT %", "{:.0f}"))
+SPLITS = ("val", "heldout")
+
+
+def without_direct_sound(ckpt: Path, out: Path) -> Path:
+    """A copy of ``ckpt`` whose responses leave the direct sound to B (the task before it was placed)."""
+    if not out.is_file():
+        data = load_checkpoint(ckpt)
+        data["config"]["rir"]["direct_sound"] = False
+        data["config"]["rir"]["direct_ild"] = False
+        save_checkpoint(data, out)
+    return out
+
+
+def environments(report: dict, method: str) -> dict[str, dict[str, dict[str, float]]]:
+    """{split: {environment: {metric: value}}} of ``method`` in an ``avgs eval --json`` report."""
+    return {split: r["methods"][method]["environments"] for split, r in report["splits"].items()}
+
+
+def score(data: Path, run: Path) -> dict:
+    """The run's checkpoint scored as it is and without the placed direct sound (cached in spatial.json)."""
+    cached = run / "spatial.json"
+    if cached.is_file():
+        return json.loads(cached.read_text())
+    ckpts = [p for p in run.glob("*.ckpt") if not p.name.endswith(".before.ckpt")]
+    if len(ckpts) != 1:
+        raise SystemExit(f"{run}: expected one checkpoint, found {[p.name for p in ckpts]}")
+    ckpt = ckpts[0]
+    before = without_direct_sound(ckpt, ckpt.with_suffix(".before.ckpt"))
+    scene = run.parent.parent.name
+    out = run / "spatial.eval.json"
+    subprocess.run([sys.executable, "-m", "avgs.cli", "eval", "--task", "rir", str(data), "--scene", scene,
+                    "--split", "both", "--method", f"ckpt:{ckpt}", "--method", f"ckpt:{before}",
+                    "--json", str(out), "--no-progress"], check=True, stdout=subprocess.DEVNULL)
+    report = json.loads(out.read_text())
+    result = {"after": environments(report, f"ckpt:{ckpt}"), "before": environments(report, f"ckpt:{before}")}
+    cached.write_text(json.dumps(result, indent=1))
+    return result
+
+
+def overall(envs: dict[str, dict[str, float]], metric: str) -> float:
+    return statistics.fmean(e[metric] for e in envs.values())
+
+
+def cell(values: list[float], fmt: str) -> str:
+    if len(values) == 1:
+        return fmt.format(values[0])
+    return f"{fmt.format(statistics.fmean(values))} ± {fmt.format(statistics.stdev(values))}"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data", type=Path, help="the scenes' data root (data/rir)")
+    parser.add_argument("sweep", type=Path, help="the sweep's folder: <scene>/<setting>/seed<k>/ and baselines.json")
+    args = parser.parse_args()
+    # {row: {split: {metric: [value per seed]}}}, each value the mean over the environments
+    rows: dict[str, dict[str, dict[str, list[float]]]] = {}
+    baselines = json.loads((args.sweep / "baselines.json").read_text())
+    for method in baselines["splits"]["val"]["methods"]:
+        envs = environments(baselines, method)
+        rows[method] = {s: {k: [overall(envs[s], k)] for k, _, _ in METRICS} for s in SPLITS}
+    settings = sorted({p.parent.name for p in args.sweep.glob("*/*/seed*")})
+    for setting in settings:
+        seeds = sorted({p.name for p in args.sweep.glob(f"*/{setting}/seed*")})
+        for seed in seeds:
+            runs = sorted(args.sweep.glob(f"*/{setting}/{seed}"))
+            # {when: {split: {environment: [per-scene metric dicts]}}}
+            per: dict[str, dict[str, dict[str, list[dict]]]] = {}
+            for run in runs:
+                for when, splits in score(args.data, run).items():
+                    for split, envs in splits.items():
+                        for env, m in envs.items():
+                            per.setdefault(when, {}).setdefault(split, {}).setdefault(env, []).append(m)
+            for when in ("before", "after"):
+                name = f"{setting}, {'direct sound left to B' if when == 'before' else 'direct sound placed'}"
+                for split in SPLITS:
+                    envs = {env: {k: statistics.fmean(m[k] for m in ms) for k, _, _ in METRICS}
+                            for env, ms in per[when][split].items()}
+                    for k, _, _ in METRICS:
+                        rows.setdefault(name, {}).setdefault(split, {}).setdefault(k, []).append(overall(envs, k))
+    for split in SPLITS:
+        print(f"\n{split}:\n")
+        print("| method | " + " | ".join(label for _, label, _ in METRICS) + " |")
+        print("|---|" + "---|" * len(METRICS))
+        for name, splits in rows.items():
+            n = len(splits[split]["t60_pct"])
+            label = f"{name} ({n} seeds)" if n > 1 else name
+            print("| " + " | ".join([label] + [cell(splits[split][k], fmt) for k, _, fmt in METRICS]) + " |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
