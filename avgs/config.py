@@ -217,6 +217,8 @@ class RIRConfig:
     "Weight of the loss on each ear's energy decay curve (Schroeder; whole band and octave bands; in nats re its start, down to 50 dB): what T60, EDT and C50 read. Without it the per-frame log-magnitude loss averages the decays in the log domain and the predicted T60 comes out short (two_rooms, held out: -17 % bias, T60 error 18.5 %; with it and the energy loss 13.0 %). 0: off."
     direct_sound: bool = True
     "Put the direct sound where geometry says: nothing before distance / c, both ears coherent over its first 5 ms with the lagging ear delayed by the spherical head's ITD (its scale fitted to the training responses), the early energy kept (avgs.acoustics.rir_model.place_direct_sound); off: the noise phase from t = 0, the ears independent."
+    direct_itd: bool = True
+    "With direct_sound: the direct sound's ITD from a law of the source's direction (avgs.acoustics.interaural.itd_law, three sine harmonics) fitted to the early ITDs of the training responses in sight of the source, not from Woodworth's sphere with a fitted scale: a measured head's ITD has its own shape (fewer than 24 such responses: the sphere)."
     direct_ild: bool = True
     "With direct_sound: the early ILD (the first 5 ms) from a law of the source's direction fitted to the training responses in sight of the source (avgs.acoustics.interaural.ild_law, three sine harmonics), not from B's ears: the head shadow is the head's, which B learns from the room's whole response (two_rooms: early ILD error 2.72 / 3.24 -> 1.95 / 2.43 dB, val / held out), where the straight path is free (avgs.acoustics.line_of_sight: G_a's points along it, the threshold fitted to the training pairs' first arrivals); behind a wall, and with this off, B's."
     phase: Literal["noise", "griffin-lim"] = "noise"
@@ -384,7 +386,7 @@ ADDED_LATER = {
     "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False, "interaural_delay": False},
     "gaussians": {"cpu_max_pixels": 0},
     "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0, "direct_sound": False,
-            "direct_ild": False},
+            "direct_ild": False, "direct_itd": False},
 }
 "Fields absent from older stored configurations, with the value that the older code used."
 

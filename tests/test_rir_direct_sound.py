@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from avgs.acoustics.interaural import interaural_delay
-from avgs.acoustics.rir_model import FADE_SAMPLES, DirectSound, fractional_delay, place_direct_sound, sharpen_direct_sound
+from avgs.acoustics.interaural import fit_itd_law, interaural_delay, itd_law
+from avgs.acoustics.rir_model import (FADE_SAMPLES, DirectSound, cohere_early, fractional_delay, place_direct_sound,
+                                      sharpen_direct_sound)
 from avgs.config import STFT
 from avgs.evaluation import spatial
 from avgs.render.renderer import SceneRenderer
@@ -114,9 +115,13 @@ def renderer(quick_rir_scene, tmp_path_factory):
 
 
 def test_a_response_starts_at_distance_over_c_with_the_itd_of_its_side(renderer):
+    """The onset at distance / c; the early ITD the fitted head's (its law of the direction): the ears'
+    early stretches differ by the delay alone, and the 5 ms window cuts their ends 0.7 ms apart."""
     r = renderer
     scale = float(r.model.binauralizer.itd_scale)
     assert 1.5e-4 < scale < 4.5e-4  # fitted to the simulated head's responses
+    law = r.model.binauralizer.itd_law.double()  # [3] seconds per harmonic, fitted likewise
+    assert 4e-4 < float(itd_law(torch.tensor(math.pi / 2, dtype=torch.float64), law)) < 9e-4  # at 90 degrees
     fs, c = r.sample_rate, r.config.rir.sound_speed / r.frame.scale  # world units (m) per second
     lo, hi = r.bounds
     listener = (lo + hi) / 2
@@ -125,10 +130,10 @@ def test_a_response_starts_at_distance_over_c_with_the_itd_of_its_side(renderer)
         warnings.simplefilter("ignore")
         for yaw, side in ((0.0, 1), (180.0, -1), (90.0, 0)):  # facing +x: the source on the left; -x: right; +y: ahead
             h = r.binaural_filter(listener, yaw, source).impulse  # [2, L]
-            tau = float(interaural_delay(torch.tensor(side * math.pi / 2), scale))
+            tau = float(itd_law(torch.tensor(side * math.pi / 2, dtype=torch.float64), law))
             arrival = 1.5 / c  # the leading ear hears it first, undelayed
             assert spatial.onset(h) / fs == pytest.approx(arrival, abs=0.5e-3)
-            assert spatial.response_itd(h, fs) == pytest.approx(-tau, abs=30e-6)  # negative: the left ear leads
+            assert spatial.response_itd(h, fs) == pytest.approx(-tau, abs=25e-6)  # negative: the left ear leads
 
 
 def test_the_fitted_head_shadow_makes_the_near_ear_louder_and_info_says_so(renderer, tmp_path, capsys):
@@ -167,8 +172,9 @@ def test_a_checkpoint_without_it_is_unchanged(renderer, quick_rir_scene, tmp_pat
     ckpt = load_checkpoint(renderer.path)
     ckpt["config"]["rir"]["direct_sound"] = False
     ckpt["config"]["rir"].pop("direct_ild", None)  # absent: an older checkpoint's
+    ckpt["config"]["rir"].pop("direct_itd", None)
     del ckpt["binauralizer"]["itd_scale"]
-    for key in ("ild_law", "sight_radius", "sight_margin", "sight_blocked"):
+    for key in ("itd_law", "ild_law", "sight_radius", "sight_margin", "sight_blocked"):
         ckpt["binauralizer"].pop(key, None)
     save_checkpoint(ckpt, tmp_path / "old.ckpt")
     old = SceneRenderer.load(tmp_path / "old.ckpt")
@@ -178,6 +184,26 @@ def test_a_checkpoint_without_it_is_unchanged(renderer, quick_rir_scene, tmp_pat
         warnings.simplefilter("ignore")
         h = old.binaural_filter((lo + hi) / 2, 0.0, (lo + hi) / 2 + np.array([0.0, 1.5, 0.0])).impulse
     assert np.any(h[:, :16] != 0)  # sound from the first samples on, as before
+
+
+def test_a_checkpoint_from_before_the_itd_law_keeps_the_sphere(renderer, tmp_path):
+    """A checkpoint with the direct sound placed but no ITD law (direct_itd absent: off) gives the ears
+    Woodworth's ITD with its fitted scale, as it did."""
+    from avgs.io.checkpoint import load_checkpoint, save_checkpoint
+
+    ckpt = load_checkpoint(renderer.path)
+    ckpt["config"]["rir"].pop("direct_itd")
+    del ckpt["binauralizer"]["itd_law"]
+    save_checkpoint(ckpt, tmp_path / "sphere.ckpt")
+    old = SceneRenderer.load(tmp_path / "sphere.ckpt")
+    assert old.model.binauralizer.itd_law is None
+    lo, hi = old.bounds
+    listener = (lo + hi) / 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        h = old.binaural_filter(listener, 0.0, listener + np.array([0.0, 1.5, 0.0])).impulse  # the source on the left
+    tau = float(interaural_delay(torch.tensor(math.pi / 2), float(old.model.binauralizer.itd_scale)))
+    assert spatial.response_itd(h, old.sample_rate) == pytest.approx(-tau, abs=25e-6)
 
 
 def test_a_wall_of_points_blocks_the_straight_path_and_the_threshold_is_fitted():
@@ -217,3 +243,42 @@ def test_the_direct_sound_is_placed_on_cuda_as_on_the_cpu():
     on_gpu = place_direct_sound(h.to(gpu), DirectSound(*(t.to(gpu) for t in (direct.arrival, direct.delays, direct.ild))), STFT)
     assert on_gpu.device.type == "cuda"
     assert torch.allclose(on_gpu.cpu(), on_cpu, atol=1e-6)
+
+
+def test_the_itd_law_is_fitted_from_known_itds_despite_reflections():
+    """fit_itd_law recovers a law from measured ITDs (seconds) of which a fifth are an early reflection's
+    (far off the law): they are left out of the second fit."""
+    rng = np.random.default_rng(4)
+    theta = rng.uniform(-np.pi, np.pi, 300)
+    truth = np.array([6.4e-4, 3.0e-5, -6.0e-5])
+    tau = np.sin(theta[:, None] * np.arange(1, 4)) @ truth + rng.normal(0.0, 1.5e-5, 300)
+    wrong = rng.random(300) < 0.2
+    tau[wrong] = rng.uniform(-8e-4, 8e-4, int(wrong.sum()))
+    coef = fit_itd_law(theta, tau)
+    assert coef is not None and np.allclose(coef, truth, atol=1.2e-5)
+    assert fit_itd_law(theta[:23], tau[:23]) is None  # too few: Woodworth's sphere stays
+
+
+def test_the_ears_early_stretches_differ_by_the_itd_alone():
+    """An impulse and a noise remainder in proportions that differ between the ears (as the head shadow and
+    B make them): GCC-PHAT over the first 5 ms measures another ITD than the one placed; after cohere_early
+    it measures the placed one, the lagging ear keeps its early energy, and nothing else changes."""
+    rng = np.random.default_rng(5)
+    fs, L = STFT.sample_rate, 3000
+    start = torch.tensor([[800.25, 806.9]], dtype=torch.float64)  # the right ear 6.65 samples (302 us) later
+    y = torch.zeros(1, 2, L, dtype=torch.float64)
+    for ear, (impulse, noise) in enumerate(((1.0, 0.15), (0.3, 0.3))):  # the far ear: a weaker impulse, more remainder
+        s0 = int(math.ceil(float(start[0, ear])))
+        y[0, ear, s0 : s0 + 600] = torch.from_numpy(rng.normal(0.0, noise, 600) * np.exp(-np.arange(600) / 300.0))
+        y[0, ear] += impulse * torch.from_numpy(np.sinc(np.arange(L) - float(start[0, ear])) *
+                                                (np.abs(np.arange(L) - float(start[0, ear])) < 8))
+    placed = -6.65 / fs  # negative: the left ear leads
+    before = spatial.response_itd(y[0].numpy(), fs)
+    out = cohere_early(y, start, fs)
+    after = spatial.response_itd(out[0].numpy(), fs)
+    assert abs(before - placed) > 20e-6 and abs(after - placed) < 10e-6
+    assert torch.equal(out[0, 0], y[0, 0])  # the leading ear as it was
+    n = int(round(0.005 * fs))
+    assert float(out[0, 1, 800 : 800 + n].square().sum()) == pytest.approx(float(y[0, 1, 800 : 800 + n].square().sum()), rel=1e-9)
+    assert spatial.early_ild(out[0].numpy(), fs) == pytest.approx(spatial.early_ild(y[0].numpy(), fs), abs=0.1)
+    assert torch.equal(out[0, 1, 1100:], y[0, 1, 1100:])  # after the stretch and its crossfade

@@ -62,7 +62,11 @@ def interaural_delay(theta: torch.Tensor, scale) -> torch.Tensor:
 
 def ear_delays(theta: torch.Tensor, scale) -> torch.Tensor:
     """Each ear's delay ``[..., 2]`` seconds (left, right) for directions ``theta`` [...]: the lagging ear by |tau|."""
-    tau = interaural_delay(theta, scale)
+    return lagging_ear(interaural_delay(theta, scale))
+
+
+def lagging_ear(tau: torch.Tensor) -> torch.Tensor:
+    """Each ear's delay ``[..., 2]`` seconds (left, right) for ITDs ``tau`` [...] (> 0: the right ear later)."""
     return torch.stack([(-tau).clamp_min(0.0), tau.clamp_min(0.0)], dim=-1)
 
 
@@ -93,6 +97,46 @@ def fit_scale(theta, itd, default: float = DEFAULT_SCALE) -> float:
     s, t = shape[keep], tau[keep]
     scale = float(np.dot(s, t) / np.dot(s, s))
     return scale if math.isfinite(scale) and scale > 0 else float(default)
+
+
+ITD_HARMONICS = 3
+"Sine harmonics of the direction in the direct sound's ITD law (:func:`itd_law`)."
+
+
+def itd_law(theta: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
+    """The direct sound's ITD ``tau [...]`` seconds (> 0: the source is on the left, the right ear later)
+    of directions ``theta [...]`` (radians): ``sum_k c_k sin(k theta)``, k = 1..K for ``coefficients [K]``
+    seconds; the same form as :func:`ild_law`.
+
+    Woodworth's sphere has one free number and a fixed shape; a measured head (KEMAR) has its own
+    shape, flatter near 90 degrees and not the same in front and behind (the ears sit behind the
+    head's centre). Three harmonics follow it closer: fitted to the early ITDs of the training
+    responses in sight of the source (:func:`fit_itd_law`)."""
+    k = torch.arange(1, coefficients.shape[-1] + 1, dtype=theta.dtype, device=theta.device)  # [K]
+    return (torch.sin(theta[..., None] * k) * coefficients.to(theta)).sum(-1)
+
+
+def fit_itd_law(theta, tau, harmonics: int = ITD_HARMONICS) -> np.ndarray | None:
+    """Coefficients ``[harmonics]`` (seconds) of :func:`itd_law` for measured ITDs ``tau [M]`` (seconds,
+    > 0 when the right ear lags) at directions ``theta [M]``; None with fewer than ``8 * harmonics``
+    finite measurements or a fit that is not finite (Woodworth's head is then kept).
+
+    Least squares, then again without the measurements more than three median absolute deviations
+    off the first fit: an early reflection that won the first milliseconds' cross-correlation is
+    not the head's ITD."""
+    theta = np.asarray(theta, dtype=np.float64).reshape(-1)
+    tau = np.asarray(tau, dtype=np.float64).reshape(-1)
+    keep = np.isfinite(theta) & np.isfinite(tau)
+    if keep.sum() < 8 * harmonics:
+        return None
+    theta, tau = theta[keep], tau[keep]
+    basis = np.sin(theta[:, None] * np.arange(1, harmonics + 1))  # [M, K]
+    coef, *_ = np.linalg.lstsq(basis, tau, rcond=None)
+    residual = np.abs(tau - basis @ coef)
+    inliers = residual <= 3.0 * max(np.median(residual), 1e-6)
+    if inliers.sum() >= 8 * harmonics:
+        coef, *_ = np.linalg.lstsq(basis[inliers], tau[inliers], rcond=None)
+    return coef if np.all(np.isfinite(coef)) else None
 
 
 ILD_HARMONICS = 3

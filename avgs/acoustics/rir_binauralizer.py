@@ -74,7 +74,7 @@ import torch
 from torch import nn
 
 from avgs.acoustics.encodings import encoded_dim, positional_encoding
-from avgs.acoustics.interaural import DEFAULT_SCALE, ILD_HARMONICS
+from avgs.acoustics.interaural import DEFAULT_SCALE, ILD_HARMONICS, ITD_HARMONICS
 
 NEVER_BLOCKED = 1e12
 "The ``sight_blocked`` count of a model without the straight path's test: no path is blocked."
@@ -136,6 +136,10 @@ class RIRBinauralizer(nn.Module):
             self.register_buffer("itd_scale", torch.tensor(DEFAULT_SCALE))
         else:
             self.itd_scale = None
+        if cfg.direct_sound and cfg.direct_itd:  # seconds per sine harmonic of the direction, fitted (avgs.train)
+            self.register_buffer("itd_law", torch.zeros(ITD_HARMONICS))
+        else:
+            self.itd_law = None
         if cfg.direct_sound and cfg.direct_ild:  # dB per sine harmonic of the direction, fitted (avgs.train)
             self.register_buffer("ild_law", torch.zeros(ILD_HARMONICS))
             # The straight path's test (avgs.acoustics.line_of_sight), fitted with it: radius and margin in the

@@ -59,6 +59,8 @@ def summary(path) -> dict:
         "rt60_s": octave_rt60(ckpt["binauralizer"].get("reverb.log_rt60"), stft),
         "itd_scale_us": (None if ckpt["binauralizer"].get("itd_scale") is None
                          else 1e6 * float(ckpt["binauralizer"]["itd_scale"])),
+        "itd_law_us": (None if ckpt["binauralizer"].get("itd_law") is None
+                       else [1e6 * float(c) for c in ckpt["binauralizer"]["itd_law"]]),
         "ild_law_db": (None if ckpt["binauralizer"].get("ild_law") is None
                        else [float(c) for c in ckpt["binauralizer"]["ild_law"]]),
         "blocked_from_points": (None if ckpt["binauralizer"].get("sight_blocked") is None
@@ -123,6 +125,9 @@ def run(args: argparse.Namespace) -> int:
         scale = info["itd_scale_us"]
         print(f"  ears: a spherical head's ITD, a / c = {scale:.0f} us (a = {scale * 0.0343:.1f} cm at 343 m/s; "
               f"{scale * (math.pi / 2 + 1):.0f} us at 90 degrees)")
+    if info["itd_law_us"] is not None:
+        law = " + ".join(f"{c:.0f} sin {k + 1 if k else ''}theta" for k, c in enumerate(info["itd_law_us"]))
+        print(f"  direct sound's ITD: {law} us (fitted to the training responses in sight of the source)")
     if info["ild_law_db"] is not None:
         law = " + ".join(f"{c:.1f} sin {k + 1 if k else ''}theta" for k, c in enumerate(info["ild_law_db"]))
         blocked = info["blocked_from_points"]

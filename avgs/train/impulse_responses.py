@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from avgs import dsp
-from avgs.acoustics.interaural import DEFAULT_SCALE, fit_ild_law, fit_scale
+from avgs.acoustics.interaural import DEFAULT_SCALE, fit_ild_law, fit_itd_law, fit_scale
 from avgs.acoustics.rir_model import RIRModel, response_waveform
 from avgs.config import STFTConfig, TrainConfig
 from avgs.data.frame import signed_direction
@@ -269,6 +269,7 @@ class ImpulseResponseTraining:
             raise ValueError(f"{self.responses.scene_dir}: no training responses")
         self.evals: dict[str, RIRData] = {}
         self.itd_scale: float | None = None  # fitted by configure() for a fresh run
+        self.itd_law: list[float] | None = None  # seconds per harmonic, likewise
         self.ild_law: list[float] | None = None  # dB per harmonic, fitted by configure() for a fresh run
         self._in_sight: np.ndarray | None = None  # [M] training pairs whose first arrival is the direct sound
         self._log: JsonLinesLog | None = None
@@ -279,7 +280,7 @@ class ImpulseResponseTraining:
         cfg.rir.frames = dsp.n_frames(cfg.rir.length, cfg.stft)
         cfg.rir.sound_speed = speed_of_sound(self.responses) * self.scene.frame.scale  # normalised units per second
         log.write({"stage": "rir", "event": "task", "task": "rir", "responses": len(self.train_set), "length": cfg.rir.length})
-        self.itd_scale, self.ild_law, self._in_sight, self._log = None, None, None, log
+        self.itd_scale, self.itd_law, self.ild_law, self._in_sight, self._log = None, None, None, None, log
         if cfg.rir.direct_sound:  # the head that the training responses' direct sounds carry
             train = self.train_set
             theta = signed_direction(torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
@@ -296,10 +297,16 @@ class ImpulseResponseTraining:
             self.itd_scale = fit_scale(theta.numpy(), itds)
             log.write({"stage": "itd", "event": "fit", "scale_us": self.itd_scale * 1e6, "default_us": DEFAULT_SCALE * 1e6,
                        "responses": len(itds)})
-            if cfg.rir.direct_ild:  # the head shadow, from the responses whose first arrival is the direct sound
-                arrival = np.linalg.norm(np.asarray(train.source, dtype=np.float64) - np.asarray(train.receiver, dtype=np.float64),
-                                         axis=-1) / cfg.rir.sound_speed  # [M] seconds (normalised units / their speed)
-                in_sight = np.asarray(onsets) - arrival <= IN_SIGHT_S
+            arrival = np.linalg.norm(np.asarray(train.source, dtype=np.float64) - np.asarray(train.receiver, dtype=np.float64),
+                                     axis=-1) / cfg.rir.sound_speed  # [M] seconds (normalised units / their speed)
+            in_sight = np.asarray(onsets) - arrival <= IN_SIGHT_S  # the responses whose first arrival is the direct sound
+            if cfg.rir.direct_itd:  # the head's own ITD against the direction, from those responses
+                law = fit_itd_law(theta.numpy()[in_sight], -np.asarray(itds)[in_sight])
+                self.itd_law = None if law is None else [float(c) for c in law]
+                cfg.rir.direct_itd = law is not None  # too few responses in sight: Woodworth's sphere, said in the log
+                log.write({"stage": "itd", "event": "law", "harmonics_us": None if law is None else [1e6 * c for c in self.itd_law],
+                           "responses": int(in_sight.sum())})
+            if cfg.rir.direct_ild:  # the head shadow, from the same responses
                 self._in_sight = in_sight  # the straight path's test is fitted on them with the model's points (trainer)
                 law = fit_ild_law(theta.numpy()[in_sight], np.asarray(ilds)[in_sight])
                 self.ild_law = None if law is None else [float(c) for c in law]
@@ -337,6 +344,9 @@ class ImpulseResponseTraining:
         if not resumed and self.itd_scale is not None:
             with torch.no_grad():
                 model.binauralizer.itd_scale.fill_(self.itd_scale)
+        if not resumed and self.itd_law is not None:
+            with torch.no_grad():
+                model.binauralizer.itd_law.copy_(torch.tensor(self.itd_law))
         if not resumed and self.ild_law is not None:
             with torch.no_grad():
                 model.binauralizer.ild_law.copy_(torch.tensor(self.ild_law))
