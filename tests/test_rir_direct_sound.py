@@ -162,7 +162,11 @@ def test_the_fitted_head_shadow_makes_the_near_ear_louder_and_info_says_so(rende
             without = spatial.early_ild(plain.binaural_filter(listener, yaw, source).impulse, fs)
             assert side * with_law > 1.0 and side * (with_law - without) > 1.0
     assert main(["info", str(renderer.path)]) == 0
-    assert "direct sound's ILD: " in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "direct sound's ILD: " in out
+    law = [1e6 * float(c) for c in renderer.model.binauralizer.itd_law]
+    assert f"direct sound's ITD: {law[0]:.0f} sin theta {'-' if law[1] < 0 else '+'} {abs(law[1]):.0f} sin 2theta" in out
+    assert "spherical head" not in out  # the law replaces the sphere
 
 
 def test_a_checkpoint_without_it_is_unchanged(renderer, quick_rir_scene, tmp_path):

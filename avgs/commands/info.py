@@ -105,6 +105,15 @@ def octave_rt60(log_rt60, stft) -> dict[str, float] | None:
     return bands
 
 
+def harmonics(coefficients: list[float], fmt: str) -> str:
+    """``a sin theta + b sin 2theta - c sin 3theta`` of a law's coefficients."""
+    out = ""
+    for k, c in enumerate(coefficients, start=1):
+        term = f"{abs(c):{fmt}} sin {k if k > 1 else ''}theta"
+        out += (("-" if c < 0 else "") + term) if not out else (f" - {term}" if c < 0 else f" + {term}")
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     info = summary(args.checkpoint)
     if args.json:
@@ -121,15 +130,15 @@ def run(args: argparse.Namespace) -> int:
     t = info["training"]
     at = "" if info["iteration"] is None else f"; at iteration {info['iteration']}"
     print("  trained " + ", ".join(f"{k} {v}" for k, v in t.items()) + at)
-    if info["itd_scale_us"] is not None:
+    if info["itd_scale_us"] is not None and info["itd_law_us"] is None:
         scale = info["itd_scale_us"]
         print(f"  ears: a spherical head's ITD, a / c = {scale:.0f} us (a = {scale * 0.0343:.1f} cm at 343 m/s; "
               f"{scale * (math.pi / 2 + 1):.0f} us at 90 degrees)")
     if info["itd_law_us"] is not None:
-        law = " + ".join(f"{c:.0f} sin {k + 1 if k else ''}theta" for k, c in enumerate(info["itd_law_us"]))
-        print(f"  direct sound's ITD: {law} us (fitted to the training responses in sight of the source)")
+        print(f"  direct sound's ITD: {harmonics(info['itd_law_us'], '.0f')} us (fitted to the training responses in sight "
+              "of the source)")
     if info["ild_law_db"] is not None:
-        law = " + ".join(f"{c:.1f} sin {k + 1 if k else ''}theta" for k, c in enumerate(info["ild_law_db"]))
+        law = harmonics(info["ild_law_db"], ".1f")
         blocked = info["blocked_from_points"]
         where = ("everywhere (no wall told apart in training)" if blocked is None or blocked >= 1e11 else
                  f"where the straight path is free (behind a wall from {blocked:.0f} audio points along it: B's ILD)")
