@@ -37,6 +37,9 @@ def without_direct_sound(ckpt: Path, out: Path) -> Path:
         data = load_checkpoint(ckpt)
         data["config"]["rir"]["direct_sound"] = False
         data["config"]["rir"]["direct_ild"] = False
+        data["config"]["rir"]["direct_itd"] = False
+        for key in ("itd_scale", "itd_law", "ild_law", "sight_radius", "sight_margin", "sight_blocked"):
+            data["binauralizer"].pop(key, None)  # the fitted head's, which such a model does not have
         save_checkpoint(data, out)
     return out
 

@@ -109,9 +109,10 @@ def itd_law(theta: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
     seconds; the same form as :func:`ild_law`.
 
     Woodworth's sphere has one free number and a fixed shape; a measured head (KEMAR) has its own
-    shape, flatter near 90 degrees and not the same in front and behind (the ears sit behind the
-    head's centre). Three harmonics follow it closer: fitted to the early ITDs of the training
-    responses in sight of the source (:func:`fit_itd_law`)."""
+    shape, and its ears sit behind the head's centre (front and back differ: the even harmonics).
+    Three harmonics follow it closer: fitted to the early ITDs of the training responses in sight
+    of the source (:func:`fit_itd_law`; two rooms: 43 / 26 us from the measured ITDs against 57 /
+    49 us for the fitted sphere, val / held out).""" 
     k = torch.arange(1, coefficients.shape[-1] + 1, dtype=theta.dtype, device=theta.device)  # [K]
     return (torch.sin(theta[..., None] * k) * coefficients.to(theta)).sum(-1)
 
