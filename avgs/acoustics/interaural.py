@@ -99,6 +99,34 @@ def fit_scale(theta, itd, default: float = DEFAULT_SCALE) -> float:
     return scale if math.isfinite(scale) and scale > 0 else float(default)
 
 
+def sine_series(theta: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
+    """``sum_k c_k sin(k theta)`` [...] of directions ``theta [...]`` (radians), k = 1..K for
+    ``coefficients [K]``: the form of the direct sound's laws (:func:`itd_law`, :func:`ild_law`)."""
+    k = torch.arange(1, coefficients.shape[-1] + 1, dtype=theta.dtype, device=theta.device)  # [K]
+    return (torch.sin(theta[..., None] * k) * coefficients.to(theta)).sum(-1)
+
+
+def fit_sine_series(theta, values, harmonics: int, least: int, robust: bool = False) -> np.ndarray | None:
+    """Least-squares coefficients ``[harmonics]`` of :func:`sine_series` for ``values [M]`` measured at
+    ``theta [M]``; None with fewer than ``least`` finite pairs or a fit that is not finite. ``robust``:
+    fitted again without the pairs more than three median absolute deviations off the first fit (if
+    ``least`` remain)."""
+    theta = np.asarray(theta, dtype=np.float64).reshape(-1)
+    values = np.asarray(values, dtype=np.float64).reshape(-1)
+    keep = np.isfinite(theta) & np.isfinite(values)
+    if keep.sum() < least:
+        return None
+    theta, values = theta[keep], values[keep]
+    basis = np.sin(theta[:, None] * np.arange(1, harmonics + 1))  # [M, K]
+    coef, *_ = np.linalg.lstsq(basis, values, rcond=None)
+    if robust:
+        residual = np.abs(values - basis @ coef)
+        inliers = residual <= 3.0 * max(np.median(residual), 1e-6)
+        if inliers.sum() >= least:
+            coef, *_ = np.linalg.lstsq(basis[inliers], values[inliers], rcond=None)
+    return coef if np.all(np.isfinite(coef)) else None
+
+
 ITD_HARMONICS = 3
 "Sine harmonics of the direction in the direct sound's ITD law (:func:`itd_law`)."
 
@@ -112,9 +140,8 @@ def itd_law(theta: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
     shape, and its ears sit behind the head's centre (front and back differ: the even harmonics).
     Three harmonics follow it closer: fitted to the early ITDs of the training responses in sight
     of the source (:func:`fit_itd_law`; two rooms: 43 / 26 us from the measured ITDs against 57 /
-    49 us for the fitted sphere, val / held out).""" 
-    k = torch.arange(1, coefficients.shape[-1] + 1, dtype=theta.dtype, device=theta.device)  # [K]
-    return (torch.sin(theta[..., None] * k) * coefficients.to(theta)).sum(-1)
+    49 us for the fitted sphere, val / held out)."""
+    return sine_series(theta, coefficients)
 
 
 def fit_itd_law(theta, tau, harmonics: int = ITD_HARMONICS) -> np.ndarray | None:
@@ -125,19 +152,7 @@ def fit_itd_law(theta, tau, harmonics: int = ITD_HARMONICS) -> np.ndarray | None
     Least squares, then again without the measurements more than three median absolute deviations
     off the first fit: an early reflection that won the first milliseconds' cross-correlation is
     not the head's ITD."""
-    theta = np.asarray(theta, dtype=np.float64).reshape(-1)
-    tau = np.asarray(tau, dtype=np.float64).reshape(-1)
-    keep = np.isfinite(theta) & np.isfinite(tau)
-    if keep.sum() < 8 * harmonics:
-        return None
-    theta, tau = theta[keep], tau[keep]
-    basis = np.sin(theta[:, None] * np.arange(1, harmonics + 1))  # [M, K]
-    coef, *_ = np.linalg.lstsq(basis, tau, rcond=None)
-    residual = np.abs(tau - basis @ coef)
-    inliers = residual <= 3.0 * max(np.median(residual), 1e-6)
-    if inliers.sum() >= 8 * harmonics:
-        coef, *_ = np.linalg.lstsq(basis[inliers], tau[inliers], rcond=None)
-    return coef if np.all(np.isfinite(coef)) else None
+    return fit_sine_series(theta, tau, harmonics, least=8 * harmonics, robust=True)
 
 
 ILD_HARMONICS = 3
@@ -153,19 +168,11 @@ def ild_law(theta: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
     front-back asymmetry of a head with ears behind its centre. The head shadow is a matter of
     the head, not of the room: the law is fitted to the training responses (:func:`fit_ild_law`).
     """
-    k = torch.arange(1, coefficients.shape[-1] + 1, dtype=theta.dtype, device=theta.device)  # [K]
-    return (torch.sin(theta[..., None] * k) * coefficients.to(theta)).sum(-1)
+    return sine_series(theta, coefficients)
 
 
 def fit_ild_law(theta, ild_db, harmonics: int = ILD_HARMONICS) -> np.ndarray | None:
     """Least-squares coefficients ``[harmonics]`` (dB) of :func:`ild_law` for measured early ILDs
     ``ild_db [M]`` at directions ``theta [M]`` (radians); None with fewer than ``4 * harmonics``
     finite measurements or a fit that is not finite (the law is then not used)."""
-    theta = np.asarray(theta, dtype=np.float64).reshape(-1)
-    ild = np.asarray(ild_db, dtype=np.float64).reshape(-1)
-    keep = np.isfinite(theta) & np.isfinite(ild)
-    if keep.sum() < 4 * harmonics:
-        return None
-    basis = np.sin(theta[keep, None] * np.arange(1, harmonics + 1))  # [M, K]
-    coef, *_ = np.linalg.lstsq(basis, ild[keep], rcond=None)
-    return coef if np.all(np.isfinite(coef)) else None
+    return fit_sine_series(theta, ild_db, harmonics, least=4 * harmonics)

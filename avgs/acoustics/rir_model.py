@@ -250,8 +250,7 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
     hi = min(L, max(lo, int(math.ceil(float(start.max()) + n_win)) + 1))
     span = y[..., lo:hi].double()  # [B, 2, S]
     t = torch.arange(lo, hi, dtype=torch.float64)
-    opening = ((t - (start[..., None] - FADE_SAMPLES)) / FADE_SAMPLES).clamp(0.0, 1.0)
-    gated = span * (0.5 - 0.5 * torch.cos(math.pi * opening))
+    gated = span * _gate(t, start[..., None])
     window = (t < (start + n_win)[..., None]).double()  # the first window after the arrival, and before it
     before = y[..., :lo].double().square().sum(-1) + (span.square() * window).sum(-1)  # [B, 2]
     after = (gated.square() * window).sum(-1)
@@ -263,6 +262,13 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
     ild = None if direct.ild is None else direct.ild.detach().double().cpu()  # [B] dB, beside start on the CPU
     out = cohere_early(sharpen_direct_sound(out, start, fs, ild), start, fs)
     return out.to(device=h.device, dtype=h.dtype)
+
+
+def _gate(t: torch.Tensor, start) -> torch.Tensor:
+    """The gate before an arrival at ``start`` (samples) at sample times ``t``: 0, then a raised cosine over
+    :data:`FADE_SAMPLES` up to 1 at ``start``."""
+    opening = ((t - (start - FADE_SAMPLES)) / FADE_SAMPLES).clamp(0.0, 1.0)
+    return 0.5 - 0.5 * torch.cos(math.pi * opening)
 
 
 def fractional_delay(x: torch.Tensor, samples: torch.Tensor) -> torch.Tensor:
@@ -356,9 +362,8 @@ def cohere_early(y: torch.Tensor, start: torch.Tensor, fs: float) -> torch.Tenso
         got = y[b, lead, s0 : min(L, s0 + n)]
         source[: got.shape[0]] = got
         shifted = fractional_delay(source[None], torch.tensor([d - k], dtype=torch.float64))[0, :n]  # lead moved by d
-        t = torch.arange(a0, a1, dtype=y.dtype)  # the lagging ear's gate, as place_direct_sound's: the delay's sinc tails
-        opening = ((t - (float(start[b, lag]) - FADE_SAMPLES)) / FADE_SAMPLES).clamp(0.0, 1.0)  # reach before it
-        shifted = shifted * (0.5 - 0.5 * torch.cos(math.pi * opening))
+        # the lagging ear's gate, as place_direct_sound's: the delay's sinc tails reach before it
+        shifted = shifted * _gate(torch.arange(a0, a1, dtype=y.dtype), float(start[b, lag]))
         core = min(n, s1 - s0)
         # the gain keeps the lagging ear's energy over the stretch the early ILD reads (from the earlier arrival on)
         w0 = max(a0, int(math.floor(float(start[b, lead]))))
