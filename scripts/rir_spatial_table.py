@@ -49,23 +49,27 @@ def environments(report: dict, method: str) -> dict[str, dict[str, dict[str, flo
     return {split: r["methods"][method]["environments"] for split, r in report["splits"].items()}
 
 
-def score(data: Path, run: Path) -> dict:
-    """The run's checkpoint scored as it is and without the placed direct sound (cached in spatial.json)."""
+def score(data: Path, run: Path, again: bool = False) -> dict:
+    """The run's checkpoint scored as it is and without the placed direct sound (cached in spatial.json);
+    ``again``: the checkpoint as it is scored anew with this code, "before" kept from the cache."""
     cached = run / "spatial.json"
-    if cached.is_file():
+    if cached.is_file() and not again:
         return json.loads(cached.read_text())
     ckpts = [p for p in run.glob("*.ckpt") if not p.name.endswith(".before.ckpt")]
     if len(ckpts) != 1:
         raise SystemExit(f"{run}: expected one checkpoint, found {[p.name for p in ckpts]}")
     ckpt = ckpts[0]
     before = without_direct_sound(ckpt, ckpt.with_suffix(".before.ckpt"))
+    kept = json.loads(cached.read_text()) if again and cached.is_file() else None
     scene = run.parent.parent.name
     out = run / "spatial.eval.json"
+    methods = [f"ckpt:{ckpt}"] + ([] if kept else [f"ckpt:{before}"])
     subprocess.run([sys.executable, "-m", "avgs.cli", "eval", "--task", "rir", str(data), "--scene", scene,
-                    "--split", "both", "--method", f"ckpt:{ckpt}", "--method", f"ckpt:{before}",
+                    "--split", "both", *(a for m in methods for a in ("--method", m)),
                     "--json", str(out), "--no-progress"], check=True, stdout=subprocess.DEVNULL)
     report = json.loads(out.read_text())
-    result = {"after": environments(report, f"ckpt:{ckpt}"), "before": environments(report, f"ckpt:{before}")}
+    result = {"after": environments(report, f"ckpt:{ckpt}"),
+              "before": kept["before"] if kept else environments(report, f"ckpt:{before}")}
     cached.write_text(json.dumps(result, indent=1))
     return result
 
@@ -84,6 +88,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data", type=Path, help="the scenes' data root (data/rir)")
     parser.add_argument("sweep", type=Path, help="the sweep's folder: <scene>/<setting>/seed<k>/ and baselines.json")
+    parser.add_argument("--again", action="store_true",
+                        help="score the checkpoints as they are anew with this code (rendering changes); 'before' kept")
     args = parser.parse_args()
     # {row: {split: {metric: [value per seed]}}}, each value the mean over the environments
     rows: dict[str, dict[str, dict[str, list[float]]]] = {}
@@ -99,7 +105,7 @@ def main() -> int:
             # {when: {split: {environment: [per-scene metric dicts]}}}
             per: dict[str, dict[str, dict[str, list[dict]]]] = {}
             for run in runs:
-                for when, splits in score(args.data, run).items():
+                for when, splits in score(args.data, run, args.again).items():
                     for split, envs in splits.items():
                         for env, m in envs.items():
                             per.setdefault(when, {}).setdefault(split, {}).setdefault(env, []).append(m)

@@ -286,3 +286,31 @@ def test_the_ears_early_stretches_differ_by_the_itd_alone():
     assert float(out[0, 1, 800 : 800 + n].square().sum()) == pytest.approx(float(y[0, 1, 800 : 800 + n].square().sum()), rel=1e-9)
     assert spatial.early_ild(out[0].numpy(), fs) == pytest.approx(spatial.early_ild(y[0].numpy(), fs), abs=0.1)
     assert torch.equal(out[0, 1, 1100:], y[0, 1, 1100:])  # after the stretch and its crossfade
+
+
+@pytest.mark.parametrize("ild_db", [9.0, -4.0, float("nan")])
+def test_cohere_early_gives_the_early_stretch_the_ild_asked_for(ild_db):
+    """With an ILD, the early stretch's energy is shared between the ears to give it, even where B's remainder
+    leans the other way (here the lagging right ear is the louder one before), and its sum is kept; the
+    ITD stays the placed one and nothing after the stretch and its crossfades changes. NaN: as without."""
+    rng = np.random.default_rng(6)
+    fs, L = STFT.sample_rate, 3000
+    start = torch.tensor([[800.25, 806.9]], dtype=torch.float64)
+    y = torch.zeros(1, 2, L, dtype=torch.float64)
+    for ear, (impulse, noise) in enumerate(((0.4, 0.1), (0.5, 0.6))):  # the far (right) ear louder: ILD < 0 before
+        s0 = int(math.ceil(float(start[0, ear])))
+        y[0, ear, s0 : s0 + 600] = torch.from_numpy(rng.normal(0.0, noise, 600) * np.exp(-np.arange(600) / 300.0))
+        y[0, ear] += impulse * torch.from_numpy(np.sinc(np.arange(L) - float(start[0, ear])) *
+                                                (np.abs(np.arange(L) - float(start[0, ear])) < 8))
+    assert spatial.early_ild(y[0].numpy(), fs) < -3.0
+    out = cohere_early(y, start, fs, torch.tensor([ild_db], dtype=torch.float64))
+    if math.isnan(ild_db):
+        assert torch.equal(out, cohere_early(y, start, fs))
+        return
+    assert spatial.early_ild(out[0].numpy(), fs) == pytest.approx(ild_db, abs=0.3)
+    n = int(round(0.005 * fs))
+    energy = lambda x: float(x[0, :, 800 : 800 + n].square().sum())  # noqa: E731
+    assert energy(out) == pytest.approx(energy(y), rel=1e-6)
+    # within 30 us (0.7 sample): the louder ear moves the onset, hence the 5 ms window the GCC-PHAT reads, by a sample
+    assert abs(spatial.response_itd(out[0].numpy(), fs) - (-6.65 / fs)) < 30e-6
+    assert torch.equal(out[0, :, 1150:], y[0, :, 1150:])

@@ -260,7 +260,7 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
     out[..., :lo] = 0.0
     out[..., lo:hi] = gated * (1.0 + (gain[..., None] - 1.0) * back)
     ild = None if direct.ild is None else direct.ild.detach().double().cpu()  # [B] dB, beside start on the CPU
-    out = cohere_early(sharpen_direct_sound(out, start, fs, ild), start, fs)
+    out = cohere_early(sharpen_direct_sound(out, start, fs, ild), start, fs, ild)
     return out.to(device=h.device, dtype=h.dtype)
 
 
@@ -331,10 +331,16 @@ COHERE_FADE_SAMPLES = 32
 "Samples over which the lagging ear's coherent early stretch fades back into its own response (1.5 ms)."
 
 
-def cohere_early(y: torch.Tensor, start: torch.Tensor, fs: float) -> torch.Tensor:
+def cohere_early(y: torch.Tensor, start: torch.Tensor, fs: float, ild: torch.Tensor | None = None) -> torch.Tensor:
     """``y [B, 2, L]`` with the lagging ear's first :data:`DIRECT_SECONDS` after its arrival replaced by the
     leading ear's, delayed by the difference of ``start [B, 2]`` (samples, fractional) and scaled to keep the
     lagging ear's energy over the :data:`DIRECT_SECONDS` from the earlier arrival on; then a :data:`COHERE_FADE_SAMPLES` crossfade back into its own samples.
+
+    ``ild [B]`` (dB, left over right; NaN or None: as above): the two ears' energies over that stretch are
+    shared anew, their sum kept, so that the stretch has that ILD: the lagging ear's copy takes its share,
+    the leading ear a gain over the same samples (and a crossfade back to its own level after them).
+    The impulse alone cannot always give it (:func:`sharpen_direct_sound`: B's remainder in the same
+    milliseconds may lean the other way); a gain on one direct sound heard by both ears always can.
 
     Each ear's early stretch is a placed impulse plus B's diffuse remainder, in proportions that differ
     between the ears (the head shadow's ILD moves the impulse's energy, B sets the remainder's), so the
@@ -342,8 +348,8 @@ def cohere_early(y: torch.Tensor, start: torch.Tensor, fs: float) -> torch.Tenso
     (:func:`avgs.evaluation.spatial.response_itd`) the rendered ITD was a median 27 us off the one
     placed (two rooms, in sight of the source). A head in free field gives its ears the same direct
     sound, delayed and filtered; here the filter is a broadband gain, so the early ITD is the placed one
-    and the early ILD (energy) is kept. The leading ear, the level and everything after the stretch do
-    not change."""
+    and the early ILD (energy) is kept. The leading ear (without ``ild``), the stretch's energy and
+    everything after it do not change."""
     B, _, L = y.shape
     n_early = int(round(DIRECT_SECONDS * fs))
     out = y.clone()
@@ -358,27 +364,47 @@ def cohere_early(y: torch.Tensor, start: torch.Tensor, fs: float) -> torch.Tenso
         if a1 - a0 <= COHERE_FADE_SAMPLES:
             continue
         n = a1 - a0
-        source = torch.zeros(n + 2 * IMPULSE_TAPS, dtype=y.dtype)  # the leading ear, read from s0 on
-        got = y[b, lead, s0 : min(L, s0 + n)]
+        core = min(n, s1 - s0)
+        # the stretch the early ILD reads (from the earlier arrival on), and the lagging ear's energy there
+        w0 = max(a0, int(math.floor(float(start[b, lead]))))
+        w1 = min(a0 + core, w0 + n_early)
+        energy = float(y[b, lag, w0:w1].square().sum())
+        level = None if ild is None else float(ild[b])
+        if level is not None and math.isfinite(level):  # share the stretch's energy for the ILD, its sum kept
+            lead_energy = float(y[b, lead, w0:w1].square().sum())
+            ratio = 10.0 ** ((level if lead == 0 else -level) / 10.0)  # leading over lagging ear
+            total = lead_energy + energy
+            if lead_energy > 0.0 and total > 0.0:
+                energy = total / (1.0 + ratio)
+                _scale_stretch(out[b, lead], s0, s1, math.sqrt(total * ratio / (1.0 + ratio) / lead_energy))
+        source = torch.zeros(n + 2 * IMPULSE_TAPS, dtype=y.dtype)  # the leading ear (its gain, fades and all), from s0 on
+        got = out[b, lead, s0 : min(L, s0 + n)]
         source[: got.shape[0]] = got
         shifted = fractional_delay(source[None], torch.tensor([d - k], dtype=torch.float64))[0, :n]  # lead moved by d
         # the lagging ear's gate, as place_direct_sound's: the delay's sinc tails reach before it
         shifted = shifted * _gate(torch.arange(a0, a1, dtype=y.dtype), float(start[b, lag]))
-        core = min(n, s1 - s0)
-        # the gain keeps the lagging ear's energy over the stretch the early ILD reads (from the earlier arrival on)
-        w0 = max(a0, int(math.floor(float(start[b, lead]))))
-        w1 = min(a0 + core, w0 + n_early)
-        energy = float(y[b, lag, w0:w1].square().sum())
         moved = float(shifted[w0 - a0 : w1 - a0].square().sum())
         if moved <= 0.0:
             continue
-        new = shifted * math.sqrt(energy / moved)
+        new = shifted * math.sqrt(energy / moved)  # the lagging ear's energy over the stretch: kept, or its ILD share
         fade = torch.ones(n, dtype=y.dtype)
         tail = n - core  # the crossfade after the stretch, back to the lagging ear's own samples
         if tail > 0:
             fade[core:] = 0.5 + 0.5 * torch.cos(math.pi * torch.arange(1, tail + 1, dtype=y.dtype) / (tail + 1))
         out[b, lag, a0:a1] = new * fade + y[b, lag, a0:a1] * (1.0 - fade)
     return out
+
+
+def _scale_stretch(x: torch.Tensor, s0: int, s1: int, gain: float) -> None:
+    """``x [L]`` times ``gain`` over samples ``s0 .. s1 - 1``, then back to 1 over :data:`COHERE_FADE_SAMPLES`
+    (a raised cosine), in place. Before ``s0`` the ear is silent (its gate), so no fade is needed there."""
+    L = x.shape[-1]
+    s1 = min(s1, L)
+    x[s0:s1] *= gain
+    n = min(COHERE_FADE_SAMPLES, L - s1)
+    if n > 0:
+        t = torch.arange(1, n + 1, dtype=x.dtype) / (COHERE_FADE_SAMPLES + 1)
+        x[s1 : s1 + n] *= gain + (1.0 - gain) * (0.5 - 0.5 * torch.cos(math.pi * t))
 
 
 def _shared_for_ild(rest: torch.Tensor, start: torch.Tensor, share: torch.Tensor, ild: torch.Tensor,
