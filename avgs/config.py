@@ -221,6 +221,10 @@ class RIRConfig:
     "With direct_sound: the direct sound's ITD from a law of the source's direction (avgs.acoustics.interaural.itd_law, three sine harmonics) fitted to the early ITDs of the training responses in sight of the source, not from Woodworth's sphere with a fitted scale: a measured head's ITD has its own shape (fewer than 24 such responses: the sphere)."
     direct_ild: bool = True
     "With direct_sound: the early ILD (the first 5 ms) from a law of the source's direction fitted to the training responses in sight of the source (avgs.acoustics.interaural.ild_law, three sine harmonics), not from B's ears: the head shadow is the head's, which B learns from the room's whole response (two_rooms: early ILD error 2.72 / 3.24 -> 1.95 / 2.43 dB, val / held out), where the straight path is free (avgs.acoustics.line_of_sight: G_a's points along it, the threshold fitted to the training pairs' first arrivals); behind a wall, and with this off, B's."
+    ild_local: bool = True
+    "With direct_ild: the law corrected near the training responses in sight of the source by their early ILDs' residual from it (avgs.acoustics.interaural.local_correction: the 3 nearest in listener, source and direction, inverse-distance weighted): the floor's and the near walls' reflections in the first 5 ms depend on where the listener and source are, not on the direction alone (law alone / with this, on the simulator's own responses, held-out sources: 2.0 / 1.5 dB over six presets)."
+    ild_table: int = 0
+    "Entries of that correction (training responses in sight; set at training, stored with the checkpoint; 0: the law alone)."
     phase: Literal["noise", "griffin-lim"] = "noise"
     "Waveform from the predicted magnitudes: a fixed-seed noise phase, or that phase refined by fast Griffin-Lim (same T60 / C50 / EDT on rect_small, 2.4x the render time)."
     phase_iterations: int = 4
@@ -386,7 +390,7 @@ ADDED_LATER = {
     "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False, "interaural_delay": False},
     "gaussians": {"cpu_max_pixels": 0},
     "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0, "direct_sound": False,
-            "direct_ild": False, "direct_itd": False},
+            "direct_ild": False, "direct_itd": False, "ild_local": False, "ild_table": 0},
 }
 "Fields absent from older stored configurations, with the value that the older code used."
 

@@ -75,13 +75,19 @@ from torch import nn
 
 from avgs.acoustics.encodings import encoded_dim, positional_encoding
 from avgs.acoustics.interaural import DEFAULT_SCALE, ILD_HARMONICS, ITD_HARMONICS
+from avgs.config import RIRConfig
 
 NEVER_BLOCKED = 1e12
 "The ``sight_blocked`` count of a model without the straight path's test: no path is blocked."
-from avgs.config import RIRConfig
 
 MLP_LAYERS = 4
 "Linear + ReLU layers of each of the two MLPs (as B's)."
+
+ITD_BUFFERS = ("itd_scale", "itd_law")
+"The direct sound's ITD, fitted at training (direct_sound, direct_itd): a checkpoint without them has none."
+
+ILD_BUFFERS = ("ild_law", "sight_radius", "sight_margin", "sight_blocked", "local_at", "local_residual", "local_scale")
+"The direct sound's ILD, fitted at training (direct_ild, ild_local): a checkpoint without them has none."
 
 
 def orientation_feature(theta: torch.Tensor, yaw: torch.Tensor, harmonics: int) -> torch.Tensor:
@@ -149,6 +155,14 @@ class RIRBinauralizer(nn.Module):
             self.register_buffer("sight_blocked", torch.tensor(NEVER_BLOCKED))
         else:
             self.ild_law = None
+        if cfg.direct_sound and cfg.direct_ild and cfg.ild_local and cfg.ild_table > 0:
+            # the law's local correction (avgs.acoustics.interaural.local_correction), fitted by avgs.train:
+            # where the training responses were [M, 6] (local_features over local_scale), their residual [M] dB
+            self.register_buffer("local_at", torch.zeros(cfg.ild_table, 6))
+            self.register_buffer("local_residual", torch.zeros(cfg.ild_table))
+            self.register_buffer("local_scale", torch.ones(6))
+        else:
+            self.local_at = None
 
     def time_features(self) -> torch.Tensor:
         """``W_t PE(t) + b_t`` for every frame ``[N, W]``: cacheable."""

@@ -32,7 +32,7 @@ from torch import nn
 
 from avgs import dsp
 from avgs.acoustics.field import AcousticField
-from avgs.acoustics.interaural import ear_delays, ild_law, itd_law, lagging_ear
+from avgs.acoustics.interaural import ear_delays, ild_law, itd_law, lagging_ear, local_correction, local_features
 from avgs.acoustics.line_of_sight import points_on_path
 from avgs.acoustics.model import AVGSModel, ModelCache
 from avgs.acoustics.points import AudioPoints
@@ -159,6 +159,9 @@ class RIRModel(AVGSModel):
         ild = None
         if law is not None:  # the head shadow where the straight path is free; behind a wall (NaN) B's ILD
             ild = ild_law(theta, law.double())
+            if getattr(b, "local_at", None) is not None:  # and the room's part near the training responses
+                where = local_features(listener.double(), source.double(), theta) / b.local_scale.double()
+                ild = ild + local_correction(where, b.local_at.double(), b.local_residual.double())
             along = points_on_path(self.points.X.detach(), listener, source,
                                    float(b.sight_radius), float(b.sight_margin))
             ild = torch.where(along.double() >= float(b.sight_blocked), torch.full_like(ild, float("nan")), ild)

@@ -63,6 +63,8 @@ def summary(path) -> dict:
                        else [1e6 * float(c) for c in ckpt["binauralizer"]["itd_law"]]),
         "ild_law_db": (None if ckpt["binauralizer"].get("ild_law") is None
                        else [float(c) for c in ckpt["binauralizer"]["ild_law"]]),
+        "ild_local_responses": (None if ckpt["binauralizer"].get("local_residual") is None
+                                else int(ckpt["binauralizer"]["local_residual"].numel())),
         "blocked_from_points": (None if ckpt["binauralizer"].get("sight_blocked") is None
                                 else float(ckpt["binauralizer"]["sight_blocked"])),
         "metrics": {k: v for k, v in dict(ckpt.get("metrics") or {}).items()},
@@ -142,7 +144,9 @@ def run(args: argparse.Namespace) -> int:
         blocked = info["blocked_from_points"]
         where = ("everywhere (no wall told apart in training)" if blocked is None or blocked >= 1e11 else
                  f"where the straight path is free (behind a wall from {blocked:.0f} audio points along it: B's ILD)")
-        print(f"  direct sound's ILD: {law} dB, {where}")
+        local = info["ild_local_responses"]
+        near = f", corrected near the {local} training responses in sight by their early ILDs" if local else ""
+        print(f"  direct sound's ILD: {law} dB{near}, {where}")
     if info["rt60_s"]:
         print("  learned RT60 " + ", ".join(f"{fc} Hz {v:.2f} s" for fc, v in info["rt60_s"].items()))
     if info["metrics"]:

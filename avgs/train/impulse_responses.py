@@ -34,7 +34,8 @@ import numpy as np
 import torch
 
 from avgs import dsp
-from avgs.acoustics.interaural import DEFAULT_SCALE, fit_ild_law, fit_itd_law, fit_scale
+from avgs.acoustics.interaural import (DEFAULT_SCALE, fit_ild_law, fit_itd_law, fit_local_scale, fit_scale, ild_law,
+                                      local_features)
 from avgs.acoustics.rir_model import RIRModel, response_waveform
 from avgs.config import STFTConfig, TrainConfig
 from avgs.data.frame import signed_direction
@@ -251,6 +252,21 @@ def speed_of_sound(rir_scene) -> float:
     return float(value) if isinstance(value, (int, float)) and math.isfinite(value) and value > 0 else SPEED_OF_SOUND
 
 
+def local_table(train, theta: torch.Tensor, ilds: np.ndarray, in_sight: np.ndarray, law) -> tuple:
+    """The ILD law's local correction (:func:`avgs.acoustics.interaural.local_correction`) from the training
+    pairs ``train`` (normalised positions) in sight of the source, at directions ``theta [M]``, with early
+    ILDs ``ilds [M]`` dB: ``(local_at [m, 6], local_residual [m], local_scale [6])`` float32, the pairs
+    whose ILD is finite."""
+    keep = np.asarray(in_sight, dtype=bool) & np.isfinite(ilds)
+    listener = torch.as_tensor(np.asarray(train.receiver, dtype=np.float64)[keep])
+    source = torch.as_tensor(np.asarray(train.source, dtype=np.float64)[keep])
+    th = theta[torch.as_tensor(keep)].double()
+    residual = torch.as_tensor(ilds[keep], dtype=torch.float64) - ild_law(th, torch.as_tensor(law, dtype=torch.float64))
+    where = local_features(listener, source, th)  # [m, 6]
+    scale = fit_local_scale(where)
+    return (where / scale).float(), residual.float(), scale.float()
+
+
 class ImpulseResponseTraining:
     """:class:`~avgs.train.tasks.TaskTraining` of the impulse-response task."""
 
@@ -271,6 +287,7 @@ class ImpulseResponseTraining:
         self.itd_scale: float | None = None  # fitted by configure() for a fresh run
         self.itd_law: list[float] | None = None  # seconds per harmonic, likewise
         self.ild_law: list[float] | None = None  # dB per harmonic, fitted by configure() for a fresh run
+        self.ild_table: tuple | None = None  # (local_at [M, 6], local_residual [M], local_scale [6]): the law's local correction
         self._in_sight: np.ndarray | None = None  # [M] training pairs whose first arrival is the direct sound
         self._log: JsonLinesLog | None = None
 
@@ -281,6 +298,7 @@ class ImpulseResponseTraining:
         cfg.rir.sound_speed = speed_of_sound(self.responses) * self.scene.frame.scale  # normalised units per second
         log.write({"stage": "rir", "event": "task", "task": "rir", "responses": len(self.train_set), "length": cfg.rir.length})
         self.itd_scale, self.itd_law, self.ild_law, self._in_sight, self._log = None, None, None, None, log
+        self.ild_table = None
         if cfg.rir.direct_sound:  # the head that the training responses' direct sounds carry
             train = self.train_set
             theta = signed_direction(torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
@@ -312,6 +330,12 @@ class ImpulseResponseTraining:
                 self.ild_law = None if law is None else [float(c) for c in law]
                 cfg.rir.direct_ild = law is not None  # too few responses in sight of the source: B's ILD, said in the log
                 log.write({"stage": "ild", "event": "fit", "harmonics_db": self.ild_law, "responses": int(in_sight.sum())})
+                cfg.rir.ild_table = 0
+                if law is not None and cfg.rir.ild_local:  # what the room adds to the law near the training responses
+                    self.ild_table = local_table(train, theta, np.asarray(ilds), in_sight, law)
+                    cfg.rir.ild_table = int(self.ild_table[1].shape[0])
+                    log.write({"stage": "ild", "event": "local", "responses": cfg.rir.ild_table,
+                               "median_abs_residual_db": float(self.ild_table[1].abs().median()) if cfg.rir.ild_table else None})
 
     def _fit_sight(self, model: RIRModel) -> None:
         """The straight path's test (:mod:`avgs.acoustics.line_of_sight`): the count of G_a's points along
@@ -350,6 +374,9 @@ class ImpulseResponseTraining:
         if not resumed and self.ild_law is not None:
             with torch.no_grad():
                 model.binauralizer.ild_law.copy_(torch.tensor(self.ild_law))
+                if self.ild_table is not None and getattr(model.binauralizer, "local_at", None) is not None:
+                    for name, value in zip(("local_at", "local_residual", "local_scale"), self.ild_table):
+                        getattr(model.binauralizer, name).copy_(value)
             self._fit_sight(model)
         if resumed:
             log_floor = float(model.binauralizer.log_floor)
