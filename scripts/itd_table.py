@@ -7,15 +7,18 @@ avgs.evaluation.spatial.itd), and the predicted ITD of
 - the spherical-head formula alone, with the default head (a = 8.75 cm) and with the fitted scale,
 - nearest-neighbour interpolation: the measured ITD of the training clip nearest in position and facing.
 Prints (and with --out writes, as Markdown) the median |ITD error| (us) and the lateralisation
-agreement (%), and, for the two renders, MAG / ENV / ILD (avgs eval's), each per scene.
+agreement (%), and, for the two renders, MAG / ENV / ILD (avgs eval's), each per scene. Several
+checkpoints of a scene (comma-separated: seeds) give the mean ± the standard deviation over them.
 
     .venv/bin/python scripts/itd_table.py data/presets/office_0=runs/office_0.ckpt [...] --out docs/itd_table.md
+    .venv/bin/python scripts/itd_table.py data/presets/office_0=runs/office_0.ckpt,runs/office_0.seed1.ckpt,...
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import statistics
 import sys
 import warnings
 from pathlib import Path
@@ -86,6 +89,34 @@ def scene_rows(scene_dir: Path, ckpt: Path) -> dict:
             "true_median_us": float(np.median(np.abs(true)) * 1e6), "rows": rows}
 
 
+def combine(results: list[dict]) -> dict:
+    """One scene's rows over several checkpoints (seeds): each number a list, one value per checkpoint."""
+    out = dict(results[0])
+    rows: dict[str, dict] = {}
+    for res in results:
+        for label, row in res["rows"].items():
+            key = "spherical head, fitted" if label.startswith("spherical head, fitted") else label
+            into = rows.setdefault(key, {"label": label})
+            for name, value in row.items():
+                if name == "itd":
+                    into.setdefault("err", []).append(value[0])
+                    into.setdefault("lat", []).append(value[1])
+                else:
+                    into.setdefault(name, []).append(value)
+    out["rows"], out["seeds"] = rows, len(results)
+    return out
+
+
+def cell(values: list, fmt: str) -> str:
+    values = [v for v in values if v is not None]
+    if not values:
+        return "n/a"
+    if len(values) == 1:
+        return fmt.format(values[0])
+    spread = statistics.stdev(values)
+    return f"{fmt.format(statistics.fmean(values))} ± {fmt.format(spread)}"
+
+
 def markdown(results: list[dict], argv: list[str]) -> str:
     out = ["# The interaural time difference on binaural scenes", "",
            f"`{' '.join(['.venv/bin/python', 'scripts/itd_table.py', *argv])}`", "",
@@ -93,13 +124,14 @@ def markdown(results: list[dict], argv: list[str]) -> str:
            "|ITD| >= 150 us whose predicted ITD has its sign and is >= 50 us); MAG / ENV / ILD as `avgs eval` scores "
            "them. Definitions: docs/design.md, \"Spatial cues\".", ""]
     for res in results:
+        seeds = f" ({res['seeds']} checkpoints: mean ± standard deviation)" if res["seeds"] > 1 else ""
         out += [f"## {res['scene']}: {res['clips']} val clips, {res['eligible']} with |ITD| >= 150 us, "
-                f"true median |ITD| {res['true_median_us']:.0f} us", "",
+                f"true median |ITD| {res['true_median_us']:.0f} us{seeds}", "",
                 "| method | ITD error (us) | agreement (%) | MAG | ENV | ILD (dB) |", "|---|---|---|---|---|---|"]
-        for label, row in res["rows"].items():
-            err, lat = row["itd"]
-            more = (f"{row['mag']:.4f} | {row['env']:.4f} | {row['ild']:.2f}" if "mag" in row else " | | ")
-            out.append(f"| {label} | {err:.0f} | {'n/a' if lat is None else f'{lat:.0f}'} | {more} |")
+        for row in res["rows"].values():
+            more = (f"{cell(row['mag'], '{:.4f}')} | {cell(row['env'], '{:.4f}')} | {cell(row['ild'], '{:.2f}')}"
+                    if "mag" in row else " | | ")
+            out.append(f"| {row['label']} | {cell(row['err'], '{:.0f}')} | {cell(row['lat'], '{:.0f}')} | {more} |")
         out.append("")
     return "\n".join(out)
 
@@ -115,7 +147,7 @@ def main(argv: list[str]) -> int:
         scene_dir, _, ckpt = pair.partition("=")
         if not ckpt:
             p.error(f"{pair!r}: expected SCENE_DIR=CKPT")
-        results.append(scene_rows(Path(scene_dir), Path(ckpt)))
+        results.append(combine([scene_rows(Path(scene_dir), Path(c)) for c in ckpt.split(",")]))
     text = markdown(results, argv)
     print(text)
     if args.out:
