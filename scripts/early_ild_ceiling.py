@@ -24,14 +24,13 @@ import numpy as np
 import torch
 from scipy.optimize import least_squares
 
-from avgs.acoustics.interaural import fit_local_scale, ild_law, local_correction, local_features
+from avgs.acoustics.interaural import fit_local_scale, local_correction, local_features
 from avgs.data.frame import signed_direction
 from avgs.data.rir import RIRScene
 from avgs.evaluation import spatial
 from avgs.train.impulse_responses import speed_of_sound
 
 WINDOW_S = 0.005
-IN_SIGHT_S = 1e-3
 
 
 def measured(scene: RIRScene, split: str) -> dict:
@@ -44,7 +43,7 @@ def measured(scene: RIRScene, split: str) -> dict:
                              torch.as_tensor(np.asarray(q.source), dtype=torch.float64)).numpy()
     onset = np.array([spatial.onset(h) for h in q.rir]) / fs
     ild = np.array([spatial.early_ild(h, fs) for h in q.rir])
-    keep = (onset - np.linalg.norm(S - R, axis=1) / c <= IN_SIGHT_S) & np.isfinite(ild)
+    keep = spatial.in_sight(onset, np.linalg.norm(S - R, axis=1), c) & np.isfinite(ild)
     return {"S": S[keep], "R": R[keep], "theta": theta[keep], "ild": ild[keep], "c": c}
 
 

@@ -27,8 +27,6 @@ from avgs.data.rir import RIRScene, RIRSet
 from avgs.evaluation import spatial
 from avgs.train.impulse_responses import speed_of_sound
 
-LATE_S = 1e-3
-"A true onset this much after distance / c: the response is behind a wall (scripts/rir_onset_split.py)."
 
 
 def cues(scene: RIRScene, rows: RIRSet, speed: float) -> dict[str, np.ndarray]:
@@ -38,7 +36,7 @@ def cues(scene: RIRScene, rows: RIRSet, speed: float) -> dict[str, np.ndarray]:
     late = np.array([spatial.onset(h) for h in rows.rir]) / fs - np.linalg.norm(src - rec, axis=1) / speed
     theta = signed_direction(torch.as_tensor(rows.receiver, dtype=torch.float64), torch.as_tensor(np.radians(rows.yaw)),
                              torch.as_tensor(rows.source, dtype=torch.float64)).numpy()
-    return {"src": src, "rec": rec, "theta": theta, "late": late, "behind": late > LATE_S,
+    return {"src": src, "rec": rec, "theta": theta, "late": late, "behind": late > spatial.IN_SIGHT_S,
             "itd": np.array([spatial.response_itd(h, fs) for h in rows.rir])}
 
 
@@ -62,7 +60,7 @@ def main(argv: list[str]) -> int:
     fitted = []  # (source, receiver, (p, q), delay after distance / c, behind)
     for rows in pairs.values():
         pq, *_ = np.linalg.lstsq(facing_basis(train.yaw[rows]), t["itd"][rows], rcond=None)
-        fitted.append((t["src"][rows[0]], t["rec"][rows[0]], pq, float(np.mean(t["late"][rows])), bool(np.mean(t["late"][rows]) > LATE_S)))
+        fitted.append((t["src"][rows[0]], t["rec"][rows[0]], pq, float(np.mean(t["late"][rows])), bool(np.mean(t["late"][rows]) > spatial.IN_SIGHT_S)))
     scale = fit_scale(t["theta"], t["itd"])
     print(f"{argv[0]}: {len(fitted)} training pairs, {sum(f[4] for f in fitted)} behind a wall; fitted head {scale * 1e6:.0f} us")
     for split in ("val", "heldout"):

@@ -24,8 +24,6 @@ from avgs.evaluation.impulse_response import load_method, predict
 from avgs.io.checkpoint import load_checkpoint
 from avgs.train.impulse_responses import speed_of_sound
 
-LATE_S = 1e-3
-
 
 def main(argv: list[str]) -> int:
     if len(argv) != 2:
@@ -49,7 +47,7 @@ def main(argv: list[str]) -> int:
         true = -np.array([spatial.response_itd(g, fs) for g in q.rir])
         rendered = -np.array([spatial.response_itd(p, fs) for p in pred])
         distance = np.linalg.norm(scene.frame.to_world(q.source) - scene.frame.to_world(q.receiver), axis=1)
-        sight = np.array([spatial.onset(g) for g in q.rir]) / fs - distance / speed <= LATE_S
+        sight = spatial.in_sight(np.array([spatial.onset(g) for g in q.rir]) / fs, distance, speed)
 
         def us(a):
             return np.median(np.abs(a[sight])) * 1e6

@@ -20,10 +20,6 @@ from avgs.evaluation import spatial
 from avgs.evaluation.impulse_response import load_method, predict
 from avgs.train.impulse_responses import speed_of_sound
 
-LATE_S = 1e-3
-"A true onset this much after distance / c (seconds): the response is behind a wall."
-
-
 def main(argv: list[str]) -> int:
     if len(argv) != 2:
         print(__doc__)
@@ -44,7 +40,7 @@ def main(argv: list[str]) -> int:
         onset_ms = np.abs(true_on - pred_on) * 1e3
         itd_us = np.abs([spatial.response_itd(g, fs) - spatial.response_itd(p, fs) for g, p in zip(query.rir, pred)]) * 1e6
         ild_db = np.abs([spatial.early_ild(g, fs) - spatial.early_ild(p, fs) for g, p in zip(query.rir, pred)])
-        behind = true_on - distance / speed > LATE_S
+        behind = ~spatial.in_sight(true_on, distance, speed)
         for label, rows in (("in sight", ~behind), ("behind a wall", behind)):
             if rows.any():
                 print(f"{split:8s} {label:14s} {int(rows.sum()):4d} responses: onset {np.median(onset_ms[rows]):.2f} ms, "

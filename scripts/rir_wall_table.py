@@ -25,8 +25,6 @@ from avgs.evaluation.impulse_response import load_method, predict
 from avgs.io.atomic import write_text
 from avgs.train.impulse_responses import speed_of_sound
 
-LATE_S = 1e-3
-
 
 def scores(scene: RIRScene, ckpt: str, split: str) -> dict[str, dict[str, float]]:
     fs = scene.sample_rate
@@ -42,7 +40,7 @@ def scores(scene: RIRScene, ckpt: str, split: str) -> dict[str, dict[str, float]
     energy = lambda h: float(np.sum(np.asarray(h, dtype=np.float64) ** 2))  # noqa: E731
     level = np.abs([10 * np.log10(max(energy(p), 1e-30) / max(energy(g), 1e-30)) for g, p in zip(query.rir, pred)])
     c50 = np.array([metrics.c50_error(p, g, fs) for g, p in zip(query.rir, pred)])
-    behind = true_on - distance / speed > LATE_S
+    behind = ~spatial.in_sight(true_on, distance, speed)
     out = {}
     for group, rows in (("in sight", ~behind), ("behind a wall", behind)):
         if rows.any():

@@ -124,6 +124,18 @@ def itd(x, fs: float = STFT.sample_rate) -> float:
     return float(np.clip((lag + delta) / fs, -ITD_MAX_S, ITD_MAX_S))
 
 
+IN_SIGHT_S = 1e-3
+"A response whose onset is at most this after distance / c has the direct sound first: it is in sight of the source."
+
+
+def in_sight(onset_s, distance, speed: float) -> np.ndarray:
+    """Whether each response's first arrival is the direct sound, ``[N]`` bool: its onset ``onset_s [N]``
+    (seconds, :func:`onset` / fs) at most :data:`IN_SIGHT_S` after ``distance [N] / speed`` (one unit).
+    Later, the first arrival has passed around a wall (a simulator without diffraction or
+    transmission: a reflection through a door)."""
+    return np.asarray(onset_s, dtype=np.float64) - np.asarray(distance, dtype=np.float64) / float(speed) <= IN_SIGHT_S
+
+
 def onset(h) -> int:
     """Onset sample of a binaural response ``h [2, L]`` (module docstring); ``L`` when it has none."""
     h = _binaural(h, "onset")

@@ -66,8 +66,6 @@ def rir_quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
 
 
 CHUNK = 32
-IN_SIGHT_S = 1e-3
-"A training response whose onset is at most this after distance / c has the direct sound first (the ILD law's fit)."
 "Responses read and transformed at a time outside the training step (statistics, evaluation)."
 
 
@@ -315,9 +313,9 @@ class ImpulseResponseTraining:
             self.itd_scale = fit_scale(theta.numpy(), itds)
             log.write({"stage": "itd", "event": "fit", "scale_us": self.itd_scale * 1e6, "default_us": DEFAULT_SCALE * 1e6,
                        "responses": len(itds)})
-            arrival = np.linalg.norm(np.asarray(train.source, dtype=np.float64) - np.asarray(train.receiver, dtype=np.float64),
-                                     axis=-1) / cfg.rir.sound_speed  # [M] seconds (normalised units / their speed)
-            in_sight = np.asarray(onsets) - arrival <= IN_SIGHT_S  # the responses whose first arrival is the direct sound
+            distance = np.linalg.norm(np.asarray(train.source, dtype=np.float64) - np.asarray(train.receiver, dtype=np.float64),
+                                      axis=-1)  # [M] normalised units, as the speed of sound
+            in_sight = spatial.in_sight(onsets, distance, cfg.rir.sound_speed)  # the first arrival is the direct sound
             if cfg.rir.direct_itd:  # the head's own ITD against the direction, from those responses
                 law = fit_itd_law(theta.numpy()[in_sight], -np.asarray(itds)[in_sight])
                 self.itd_law = None if law is None else [float(c) for c in law]
