@@ -357,3 +357,40 @@ def test_the_early_ild_is_corrected_near_the_training_responses(renderer, quick_
         b.local_residual.copy_(table[1])
     assert max(errors["corrected"]) < 0.5
     assert min(errors["law alone"]) > 0.5
+
+
+def test_the_direct_level_law_is_fitted_from_known_energies():
+    """1 / d^2 times a gain of the direction, recovered from noisy energies; too few: None."""
+    from avgs.acoustics.interaural import direct_level_db, fit_direct_level
+
+    rng = np.random.default_rng(7)
+    theta, distance = rng.uniform(-np.pi, np.pi, 200), rng.uniform(0.3, 6.0, 200)
+    truth = np.array([-9.0, 1.5, -1.2])
+    db = direct_level_db(torch.from_numpy(theta), torch.from_numpy(distance), torch.from_numpy(truth)).numpy()
+    energy = 10.0 ** ((db + rng.normal(0.0, 0.5, 200)) / 10.0)
+    coef = fit_direct_level(theta, distance, energy)
+    assert coef is not None and np.allclose(coef, truth, atol=0.15)
+    assert fit_direct_level(theta[:11], distance[:11], energy[:11]) is None
+
+
+def test_the_direct_sound_falls_as_one_over_d_squared_near_the_source(renderer):
+    """Training fits the level law; a source brought from 1 m to 0.5 m (same direction, in sight) gives a
+    direct sound 6 dB stronger, at the law's level, where B's first frames alone extrapolate."""
+    from avgs.acoustics.interaural import direct_level_db
+    from avgs.train.impulse_responses import direct_energy
+
+    b, r = renderer.model.binauralizer, renderer
+    assert r.config.rir.direct_level and b.level_law is not None
+    lo, hi = r.bounds
+    listener = (lo + hi) / 2
+    fs = r.sample_rate
+    levels = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for d in (0.5, 1.0):
+            h = r.binaural_filter(listener, 0.0, listener + np.array([d, 0.0, 0.0])).impulse  # straight ahead
+            levels[d] = 10.0 * math.log10(direct_energy(h, fs, spatial.response_itd(h, fs)))
+            law = float(direct_level_db(torch.tensor(0.0, dtype=torch.float64), torch.tensor(d * float(r.frame.scale),
+                                                                                                   dtype=torch.float64), b.level_law))
+            assert levels[d] == pytest.approx(law, abs=1.5)
+    assert levels[0.5] - levels[1.0] == pytest.approx(6.0, abs=1.5)
