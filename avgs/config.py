@@ -226,7 +226,7 @@ class RIRConfig:
     ild_table: int = 0
     "Entries of that correction (training responses in sight; set at training, stored with the checkpoint; 0: the law alone)."
     direct_level: bool = True
-    "With direct_sound: the direct sound's energy from geometry where the straight path is free, 1 / d^2 times a gain of the direction (avgs.acoustics.interaural.direct_level_db) fitted to the training responses in sight of the source, not from B's first frames, which a network of the distance extrapolates near the source (u_room, a source 0.5 m away: 3.8 dB too quiet)."
+    "With direct_sound: the direct sound's energy from geometry where the straight path is free, 1 / d^2 times a gain of the direction (avgs.acoustics.interaural.direct_level_db) fitted to the training responses in sight of the source, taken out of B's first window, which holds it smeared, not from B's first frames alone, which a network of the distance extrapolates near the source (the level against distance, max error over 0.5-5 m, three seeds: u_room 3.8-4.4 -> 1.8-2.2 dB, l_room 1.6-2.7 -> 0.4-0.6 dB; docs/rir_level_distance.md)."
     phase: Literal["noise", "griffin-lim"] = "noise"
     "Waveform from the predicted magnitudes: a fixed-seed noise phase, or that phase refined by fast Griffin-Lim (same T60 / C50 / EDT on rect_small, 2.4x the render time)."
     phase_iterations: int = 4

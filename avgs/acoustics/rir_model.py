@@ -273,8 +273,43 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
     out[..., lo:hi] = gated * (1.0 + (gain[..., None] - 1.0) * back)
     ild = None if direct.ild is None else direct.ild.detach().double().cpu()  # [B] dB, beside start on the CPU
     energy = None if direct.energy is None else direct.energy.detach().double().cpu()  # [B]
-    out = cohere_early(sharpen_direct_sound(out, start, fs, ild, energy), start, fs, ild)
+    early = (out[..., lo:hi].square() * window).sum((-1, -2))  # [B] B's first window, both ears: it holds the direct sound
+    sharp = sharpen_direct_sound(out, start, fs, ild, energy)
+    if energy is not None:  # the law's impulse comes out of that window, not on top of it
+        sharp = _keep_window(sharp, early, start, fs, n_win, torch.isfinite(energy))
+    out = cohere_early(sharp, start, fs, ild)
     return out.to(device=h.device, dtype=h.dtype)
+
+
+def _keep_window(y: torch.Tensor, early: torch.Tensor, start: torch.Tensor, fs: float, n_win: int,
+                 given: torch.Tensor) -> torch.Tensor:
+    """``y [B, 2, L]`` with, for the poses ``given [B]``, the rest of each ear's first window (after the
+    impulse's stretch, up to ``n_win`` samples after ``start [B, 2]``) scaled so that the window holds
+    ``early [B]`` again (both ears): B's first frames carry the direct sound's energy smeared over a
+    window; a direct sound at the level law's energy replaces that share instead of adding to it.
+    Where the law's impulse alone has more than ``early`` (near the source, where B's frames fall
+    short), the rest keeps :data:`DIFFUSE_SHARE` of its amplitude. The last :data:`COHERE_FADE_SAMPLES`
+    of the window ramp back to the ear's own level."""
+    B, _, L = y.shape
+    n_stretch = IMPULSE_SECONDS * fs
+    lo = max(0, int(math.floor(float(start.min()))) - FADE_SAMPLES)
+    hi = min(L, int(math.ceil(float(start.max()) + n_win)) + 1)
+    if lo >= hi:
+        return y
+    t = torch.arange(lo, hi, dtype=torch.float64) - start[..., None]  # [B, 2, S] samples from each ear's arrival
+    span = y[..., lo:hi]
+    inside = ((t >= -FADE_SAMPLES) & (t < n_stretch)).double()
+    rest = ((t >= n_stretch) & (t < n_win)).double()
+    have_in = (span.square() * inside).sum((-1, -2))  # [B]
+    have_rest = (span.square() * rest).sum((-1, -2))
+    floor = DIFFUSE_SHARE**2 * have_rest
+    want = torch.maximum(early - have_in, floor)
+    g = torch.where(given & (have_rest > 0), torch.sqrt(want / have_rest.clamp_min(1e-300)), torch.ones_like(want))  # [B]
+    ramp = ((n_win - t) / COHERE_FADE_SAMPLES).clamp(0.0, 1.0)  # [B, 2, S] 1 until the window's last samples, then to 0
+    profile = 1.0 + (g[:, None, None] - 1.0) * rest * (0.5 - 0.5 * torch.cos(math.pi * ramp))
+    out = y.clone()
+    out[..., lo:hi] = span * profile
+    return out
 
 
 def _gate(t: torch.Tensor, start) -> torch.Tensor:
