@@ -225,6 +225,8 @@ class RIRConfig:
     "With direct_ild: the law corrected near the training responses in sight of the source by their early ILDs' residual from it (avgs.acoustics.interaural.local_correction: the 3 nearest in listener, source and direction, inverse-distance weighted): the floor's and the near walls' reflections in the first 5 ms depend on where the listener and source are, not on the direction alone (law alone / with this, on the simulator's own responses, held-out sources: 2.0 / 1.5 dB over six presets)."
     ild_table: int = 0
     "Entries of that correction (training responses in sight; set at training, stored with the checkpoint; 0: the law alone)."
+    direct_level: bool = True
+    "With direct_sound: the direct sound's energy from geometry where the straight path is free, 1 / d^2 times a gain of the direction (avgs.acoustics.interaural.direct_level_db) fitted to the training responses in sight of the source, taken out of B's first window, which holds it smeared, not from B's first frames alone, which a network of the distance extrapolates near the source (the level against distance, max error over 0.5-5 m, three seeds: u_room 3.8-4.4 -> 1.8-2.2 dB, l_room 1.6-2.7 -> 0.4-0.6 dB; docs/rir_level_distance.md)."
     phase: Literal["noise", "griffin-lim"] = "noise"
     "Waveform from the predicted magnitudes: a fixed-seed noise phase, or that phase refined by fast Griffin-Lim (same T60 / C50 / EDT on rect_small, 2.4x the render time)."
     phase_iterations: int = 4
@@ -390,7 +392,8 @@ ADDED_LATER = {
     "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False, "interaural_delay": False},
     "gaussians": {"cpu_max_pixels": 0},
     "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0, "direct_sound": False,
-            "direct_ild": False, "direct_itd": False, "ild_local": False, "ild_table": 0},
+            "direct_ild": False, "direct_itd": False, "ild_local": False, "ild_table": 0,
+            "direct_level": False},
 }
 "Fields absent from older stored configurations, with the value that the older code used."
 

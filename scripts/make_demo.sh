@@ -31,10 +31,11 @@ mkdir -p "$WORK"
 #    the training responses (RIRConfig.direct_sound; 273 us) and its early ILD from a fitted head shadow
 #    where G_a leaves the straight path free (RIRConfig.direct_ild; the log's "ild" and "sight" records:
 #    9.0 / 1.3 / 0.8 dB, blocked from 7 points along a path, 320 / 342 and 106 / 106 training pairs told
-#    apart), corrected near the 342 training responses in sight by their own (RIRConfig.ild_local). The
-#    committed demo was made so on 2026-11-26 (stage 1 12 min, stage 2 1 min, one thread); the ITD law and
-#    the ILD's local correction were added to those weights on 2026-11-27 (scripts/rir_local_ild.py: the
-#    same fit as training's start; the weights do not depend on them).
+#    apart), corrected near the 342 training responses in sight by their own (RIRConfig.ild_local), and the
+#    direct sound's level from 1 / d^2 (RIRConfig.direct_level). The committed demo was made so on
+#    2026-11-26 (stage 1 12 min, stage 2 1 min, one thread); the ITD law, the ILD's local correction and the
+#    level law were added to those weights on 2026-11-27 (scripts/rir_refit.py: the same fits as
+#    training's start; the weights do not depend on them).
 OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --init gs --out "$WORK/scene.ckpt" --audio-points 8000 \
   --iterations 500 --batch-size 8 --lr 1e-3 --rir-width 256 --eval-every 250
 

@@ -23,7 +23,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from avgs.acoustics.rir_binauralizer import ILD_BUFFERS, ITD_BUFFERS
+from avgs.acoustics.rir_binauralizer import ILD_BUFFERS, ITD_BUFFERS, LEVEL_BUFFERS
 from avgs.io.checkpoint import load_checkpoint, save_checkpoint
 
 METRICS = (("t60_pct", "T60 %", "{:.1f}"), ("c50_db", "C50 dB", "{:.2f}"), ("edt_s", "EDT s", "{:.3f}"),
@@ -40,7 +40,8 @@ def without_direct_sound(ckpt: Path, out: Path) -> Path:
         data["config"]["rir"]["direct_ild"] = False
         data["config"]["rir"]["direct_itd"] = False
         data["config"]["rir"]["ild_local"] = False
-        for key in ITD_BUFFERS + ILD_BUFFERS:
+        data["config"]["rir"]["direct_level"] = False
+        for key in ITD_BUFFERS + ILD_BUFFERS + LEVEL_BUFFERS:
             data["binauralizer"].pop(key, None)  # the fitted head's, which such a model does not have
         save_checkpoint(data, out)
     return out

@@ -212,3 +212,35 @@ def local_correction(features: torch.Tensor, at: torch.Tensor, values: torch.Ten
     distance, index = torch.cdist(features, at.to(features)).topk(k, dim=-1, largest=False)  # [B, k]
     weight = 1.0 / (distance + 1e-6)
     return (values.to(features)[index] * weight).sum(-1) / weight.sum(-1)
+
+
+def direct_level_db(theta: torch.Tensor, distance: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
+    """The direct sound's energy ``[...]`` in dB (both ears, over its first milliseconds: what
+    :func:`avgs.acoustics.rir_model.sharpen_direct_sound` makes an impulse of) at directions ``theta``
+    (radians) and distances ``distance`` (> 0, the unit the law was fitted in): ``c0 + c1 cos theta +
+    c2 cos 2 theta - 20 log10 distance`` for ``coefficients [3]``.
+
+    A point source's direct sound falls as 1 / d^2 wherever it is heard (the simulator's responses in
+    sight of the source: ``E d^2`` within 2.1-2.8 dB of each other across six presets); the head adds a
+    gain that depends on the direction (front and back, the sides), even in theta. Near the source,
+    where the direct sound carries most of the response, this is what the level follows; a network of
+    the distance extrapolates there (docs/rir_level_distance.md)."""
+    coefficients = coefficients.to(theta)
+    shape = coefficients[0] + coefficients[1] * torch.cos(theta) + coefficients[2] * torch.cos(2.0 * theta)
+    return shape - 20.0 * torch.log10(distance.to(theta).clamp_min(1e-6))
+
+
+def fit_direct_level(theta, distance, energy) -> np.ndarray | None:
+    """Least-squares coefficients ``[3]`` of :func:`direct_level_db` for measured direct-sound energies
+    ``energy [M]`` (linear) at directions ``theta [M]`` and distances ``distance [M]``; None with fewer
+    than 12 finite positive measurements or a fit that is not finite."""
+    theta = np.asarray(theta, dtype=np.float64).reshape(-1)
+    distance = np.asarray(distance, dtype=np.float64).reshape(-1)
+    energy = np.asarray(energy, dtype=np.float64).reshape(-1)
+    keep = np.isfinite(theta) & np.isfinite(distance) & (distance > 0) & np.isfinite(energy) & (energy > 0)
+    if keep.sum() < 12:
+        return None
+    theta, distance, energy = theta[keep], distance[keep], energy[keep]
+    basis = np.stack([np.ones_like(theta), np.cos(theta), np.cos(2.0 * theta)], axis=-1)  # [M, 3]
+    coef, *_ = np.linalg.lstsq(basis, 10.0 * np.log10(energy) + 20.0 * np.log10(distance), rcond=None)
+    return coef if np.all(np.isfinite(coef)) else None

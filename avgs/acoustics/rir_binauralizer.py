@@ -86,6 +86,9 @@ MLP_LAYERS = 4
 ITD_BUFFERS = ("itd_scale", "itd_law")
 "The direct sound's ITD, fitted at training (direct_sound, direct_itd): a checkpoint without them has none."
 
+LEVEL_BUFFERS = ("level_law",)
+"The direct sound's level, fitted at training (direct_sound, direct_level): a checkpoint without it has none."
+
 ILD_BUFFERS = ("ild_law", "sight_radius", "sight_margin", "sight_blocked", "local_at", "local_residual", "local_scale")
 "The direct sound's ILD, fitted at training (direct_ild, ild_local): a checkpoint without them has none."
 
@@ -155,6 +158,10 @@ class RIRBinauralizer(nn.Module):
             self.register_buffer("sight_blocked", torch.tensor(NEVER_BLOCKED))
         else:
             self.ild_law = None
+        if cfg.direct_sound and cfg.direct_level:  # dB coefficients of the direct sound's level law (avgs.train)
+            self.register_buffer("level_law", torch.zeros(3))
+        else:
+            self.level_law = None
         if cfg.direct_sound and cfg.direct_ild and cfg.ild_local and cfg.ild_table > 0:
             # the law's local correction (avgs.acoustics.interaural.local_correction), fitted by avgs.train:
             # where the training responses were [M, 6] (local_features over local_scale), their residual [M] dB

@@ -32,7 +32,8 @@ from torch import nn
 
 from avgs import dsp
 from avgs.acoustics.field import AcousticField
-from avgs.acoustics.interaural import ear_delays, ild_law, itd_law, lagging_ear, local_correction, local_features
+from avgs.acoustics.interaural import (direct_level_db, ear_delays, ild_law, itd_law, lagging_ear, local_correction,
+                                      local_features)
 from avgs.acoustics.line_of_sight import points_on_path
 from avgs.acoustics.model import AVGSModel, ModelCache
 from avgs.acoustics.points import AudioPoints
@@ -157,6 +158,7 @@ class RIRModel(AVGSModel):
         b = self.binauralizer
         law = getattr(b, "ild_law", None)
         ild = None
+        blocked = torch.zeros_like(distance, dtype=torch.bool)  # [B] the straight path behind a wall
         if law is not None:  # the head shadow where the straight path is free; behind a wall (NaN) B's ILD
             ild = ild_law(theta, law.double())
             if getattr(b, "local_at", None) is not None:  # and the room's part near the training responses
@@ -164,10 +166,16 @@ class RIRModel(AVGSModel):
                 ild = ild + local_correction(where, b.local_at.double(), b.local_residual.double())
             along = points_on_path(self.points.X.detach(), listener, source,
                                    float(b.sight_radius), float(b.sight_margin))
-            ild = torch.where(along.double() >= float(b.sight_blocked), torch.full_like(ild, float("nan")), ild)
+            blocked = along >= float(b.sight_blocked)
+            ild = torch.where(blocked, torch.full_like(ild, float("nan")), ild)
+        energy = None
+        level = getattr(b, "level_law", None)
+        if level is not None:  # 1 / d^2 and the head's gain where the straight path is free; behind a wall B's
+            energy = 10.0 ** (direct_level_db(theta, distance, level.double()) / 10.0)  # [B]
+            energy = torch.where(blocked, torch.full_like(energy, float("nan")), energy)
         itd = getattr(b, "itd_law", None)  # the fitted head's law, else Woodworth's sphere with the fitted scale
         delays = ear_delays(theta, float(scale)) if itd is None else lagging_ear(itd_law(theta, itd.double()))  # [B, 2] s
-        return DirectSound(distance / self.rir.sound_speed, delays, ild)
+        return DirectSound(distance / self.rir.sound_speed, delays, ild, energy)
 
 
 @dataclass(frozen=True)
@@ -177,6 +185,7 @@ class DirectSound:
     arrival: torch.Tensor  # [B] seconds: distance / c
     delays: torch.Tensor  # [B, 2] seconds each ear hears it after that (the ITD: avgs.acoustics.interaural.ear_delays)
     ild: torch.Tensor | None = None  # [B] dB, left over right, of the first 5 ms (avgs.acoustics.interaural.ild_law); None / NaN: B's
+    energy: torch.Tensor | None = None  # [B] both ears' energy of the impulse's stretch (interaural.direct_level_db); None / NaN: B's
 
 
 DIRECT_SECONDS = 0.005
@@ -263,8 +272,44 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
     out[..., :lo] = 0.0
     out[..., lo:hi] = gated * (1.0 + (gain[..., None] - 1.0) * back)
     ild = None if direct.ild is None else direct.ild.detach().double().cpu()  # [B] dB, beside start on the CPU
-    out = cohere_early(sharpen_direct_sound(out, start, fs, ild), start, fs, ild)
+    energy = None if direct.energy is None else direct.energy.detach().double().cpu()  # [B]
+    early = (out[..., lo:hi].square() * window).sum((-1, -2))  # [B] B's first window, both ears: it holds the direct sound
+    sharp = sharpen_direct_sound(out, start, fs, ild, energy)
+    if energy is not None:  # the law's impulse comes out of that window, not on top of it
+        sharp = _keep_window(sharp, early, start, fs, n_win, torch.isfinite(energy))
+    out = cohere_early(sharp, start, fs, ild)
     return out.to(device=h.device, dtype=h.dtype)
+
+
+def _keep_window(y: torch.Tensor, early: torch.Tensor, start: torch.Tensor, fs: float, n_win: int,
+                 given: torch.Tensor) -> torch.Tensor:
+    """``y [B, 2, L]`` with, for the poses ``given [B]``, the rest of each ear's first window (after the
+    impulse's stretch, up to ``n_win`` samples after ``start [B, 2]``) scaled so that the window holds
+    ``early [B]`` again (both ears): B's first frames carry the direct sound's energy smeared over a
+    window; a direct sound at the level law's energy replaces that share instead of adding to it.
+    Where the law's impulse alone has more than ``early`` (near the source, where B's frames fall
+    short), the rest keeps :data:`DIFFUSE_SHARE` of its amplitude. The last :data:`COHERE_FADE_SAMPLES`
+    of the window ramp back to the ear's own level."""
+    B, _, L = y.shape
+    n_stretch = IMPULSE_SECONDS * fs
+    lo = max(0, int(math.floor(float(start.min()))) - FADE_SAMPLES)
+    hi = min(L, int(math.ceil(float(start.max()) + n_win)) + 1)
+    if lo >= hi:
+        return y
+    t = torch.arange(lo, hi, dtype=torch.float64) - start[..., None]  # [B, 2, S] samples from each ear's arrival
+    span = y[..., lo:hi]
+    inside = ((t >= -FADE_SAMPLES) & (t < n_stretch)).double()
+    rest = ((t >= n_stretch) & (t < n_win)).double()
+    have_in = (span.square() * inside).sum((-1, -2))  # [B]
+    have_rest = (span.square() * rest).sum((-1, -2))
+    floor = DIFFUSE_SHARE**2 * have_rest
+    want = torch.maximum(early - have_in, floor)
+    g = torch.where(given & (have_rest > 0), torch.sqrt(want / have_rest.clamp_min(1e-300)), torch.ones_like(want))  # [B]
+    ramp = ((n_win - t) / COHERE_FADE_SAMPLES).clamp(0.0, 1.0)  # [B, 2, S] 1 until the window's last samples, then to 0
+    profile = 1.0 + (g[:, None, None] - 1.0) * rest * (0.5 - 0.5 * torch.cos(math.pi * ramp))
+    out = y.clone()
+    out[..., lo:hi] = span * profile
+    return out
 
 
 def _gate(t: torch.Tensor, start) -> torch.Tensor:
@@ -289,7 +334,8 @@ def fractional_delay(x: torch.Tensor, samples: torch.Tensor) -> torch.Tensor:
     return torch.fft.irfft(spectrum * torch.polar(torch.ones_like(angle), angle), size)[..., :L]
 
 
-def sharpen_direct_sound(y: torch.Tensor, start: torch.Tensor, fs: float, ild: torch.Tensor | None = None) -> torch.Tensor:
+def sharpen_direct_sound(y: torch.Tensor, start: torch.Tensor, fs: float, ild: torch.Tensor | None = None,
+                         energy: torch.Tensor | None = None) -> torch.Tensor:
     """``y [B, 2, L]`` with each ear's first :data:`IMPULSE_SECONDS` after ``start [B, 2]`` (samples,
     fractional) made mostly an impulse at ``start``: the stretch keeps :data:`DIFFUSE_SHARE` of its
     amplitude and the rest of its energy becomes one band-limited impulse (a Hann-windowed sinc of
@@ -304,7 +350,12 @@ def sharpen_direct_sound(y: torch.Tensor, start: torch.Tensor, fs: float, ild: t
     ``ild [B]`` (dB, left over right; NaN: as without): the impulse's energy (both ears together, as above) is
     shared between the ears so that the first :data:`DIRECT_SECONDS` from the earlier arrival on
     (what :func:`avgs.evaluation.spatial.early_ild` reads) have that ILD, as far as the rest of
-    that stretch allows (all the impulse in one ear at most)."""
+    that stretch allows (all the impulse in one ear at most).
+
+    ``energy [B]`` (both ears; NaN: as without): the stretch's energy the direct sound's law gives
+    (:func:`avgs.acoustics.interaural.direct_level_db`): the impulse takes what the remainder leaves of
+    it (none when the remainder has more), shared between the ears as above; near the source B's first
+    frames, which a network of the distance extrapolates, then no longer set the level."""
     L = y.shape[-1]
     y = y.double()
     start = start.double()
@@ -316,14 +367,20 @@ def sharpen_direct_sound(y: torch.Tensor, start: torch.Tensor, fs: float, ild: t
     span = y[..., lo:hi]  # [B, 2, S]
     offset = torch.arange(lo, hi, dtype=torch.float64) - start[..., None]  # [B, 2, S] samples from each ear's arrival
     stretch = ((offset >= -FADE_SAMPLES) & (offset < IMPULSE_SECONDS * fs)).double()
-    energy = (span.square() * stretch).sum(-1)  # [B, 2]
+    stretch_energy = (span.square() * stretch).sum(-1)  # [B, 2]
     taper = torch.where(offset.abs() < IMPULSE_TAPS, 0.5 + 0.5 * torch.cos(math.pi * offset / IMPULSE_TAPS),
                         torch.zeros_like(offset))
     impulse = torch.sinc(offset) * taper  # [B, 2, S]
     norm = impulse.square().sum(-1, keepdim=True).sqrt().clamp_min(1e-12)
     out = y.clone()
     out[..., lo:hi] = span * (1.0 - stretch * (1.0 - DIFFUSE_SHARE))
-    share = energy * (1.0 - DIFFUSE_SHARE**2)  # [B, 2] each ear's impulse energy
+    share = stretch_energy * (1.0 - DIFFUSE_SHARE**2)  # [B, 2] each ear's impulse energy
+    if energy is not None:  # the law's total for the stretch: the impulse takes what the remainder leaves
+        rest = (stretch_energy * DIFFUSE_SHARE**2).sum(-1)  # [B]
+        total = share.sum(-1)
+        wanted = torch.where(torch.isfinite(energy), (energy.double() - rest).clamp_min(0.0), total)
+        share = torch.where(total[:, None] > 0, share * (wanted / total.clamp_min(1e-300))[:, None],
+                            wanted[:, None] * 0.5)
     if ild is not None:
         share = _shared_for_ild(out, start, share, ild.double(), fs)
     out[..., lo:hi] += impulse / norm * share.sqrt()[..., None]

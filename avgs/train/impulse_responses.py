@@ -34,9 +34,9 @@ import numpy as np
 import torch
 
 from avgs import dsp
-from avgs.acoustics.interaural import (DEFAULT_SCALE, fit_ild_law, fit_itd_law, fit_local_scale, fit_scale, ild_law,
-                                      local_features)
-from avgs.acoustics.rir_model import RIRModel, response_waveform
+from avgs.acoustics.interaural import (DEFAULT_SCALE, fit_direct_level, fit_ild_law, fit_itd_law, fit_local_scale,
+                                      fit_scale, ild_law, local_features)
+from avgs.acoustics.rir_model import FADE_SAMPLES, IMPULSE_SECONDS, RIRModel, response_waveform
 from avgs.config import STFTConfig, TrainConfig
 from avgs.data.frame import signed_direction
 from avgs.data.rir import RIRScene
@@ -250,6 +250,16 @@ def speed_of_sound(rir_scene) -> float:
     return float(value) if isinstance(value, (int, float)) and math.isfinite(value) and value > 0 else SPEED_OF_SOUND
 
 
+def direct_energy(h: np.ndarray, fs: float, itd: float) -> float:
+    """Both ears' energy of a response ``h [2, L]`` over its direct sound's stretch, as
+    :func:`~avgs.acoustics.rir_model.sharpen_direct_sound` takes it: from FADE_SAMPLES before the onset to
+    IMPULSE_SECONDS after, and the ITD ``itd`` (seconds) longer, which the lagging ear's stretch starts later."""
+    first = spatial.onset(h)
+    lo = max(0, first - FADE_SAMPLES)
+    hi = min(h.shape[-1], first + int(round((IMPULSE_SECONDS + abs(itd)) * fs)))
+    return float(np.sum(np.asarray(h[:, lo:hi], dtype=np.float64) ** 2))
+
+
 def local_table(train, theta: torch.Tensor, ilds: np.ndarray, in_sight: np.ndarray, law) -> tuple:
     """The ILD law's local correction (:func:`avgs.acoustics.interaural.local_correction`) from the training
     pairs ``train`` (normalised positions) in sight of the source, at directions ``theta [M]``, with early
@@ -286,6 +296,7 @@ class ImpulseResponseTraining:
         self.itd_law: list[float] | None = None  # seconds per harmonic, likewise
         self.ild_law: list[float] | None = None  # dB per harmonic, fitted by configure() for a fresh run
         self.ild_table: tuple | None = None  # (local_at [M, 6], local_residual [M], local_scale [6]): the law's local correction
+        self.level_law: list[float] | None = None  # dB coefficients of the direct sound's level law, likewise
         self._in_sight: np.ndarray | None = None  # [M] training pairs whose first arrival is the direct sound
         self._log: JsonLinesLog | None = None
 
@@ -296,7 +307,7 @@ class ImpulseResponseTraining:
         cfg.rir.sound_speed = speed_of_sound(self.responses) * self.scene.frame.scale  # normalised units per second
         log.write({"stage": "rir", "event": "task", "task": "rir", "responses": len(self.train_set), "length": cfg.rir.length})
         self.itd_scale, self.itd_law, self.ild_law, self._in_sight, self._log = None, None, None, None, log
-        self.ild_table = None
+        self.ild_table, self.level_law = None, None
         if cfg.rir.direct_sound:  # the head that the training responses' direct sounds carry
             train = self.train_set
             theta = signed_direction(torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
@@ -304,12 +315,13 @@ class ImpulseResponseTraining:
                                      torch.as_tensor(np.asarray(train.source), dtype=torch.float64))
             n = len(train)
             fs = cfg.stft.sample_rate
-            itds, ilds, onsets = [], [], []
+            itds, ilds, onsets, directs = [], [], [], []
             for i in range(0, n, CHUNK):
                 for h in self.responses.read("train", np.arange(i, min(i + CHUNK, n))):
                     itds.append(spatial.response_itd(h, fs))
                     ilds.append(spatial.early_ild(h, fs))
                     onsets.append(spatial.onset(h) / fs)
+                    directs.append(direct_energy(h, fs, itds[-1]))
             self.itd_scale = fit_scale(theta.numpy(), itds)
             log.write({"stage": "itd", "event": "fit", "scale_us": self.itd_scale * 1e6, "default_us": DEFAULT_SCALE * 1e6,
                        "responses": len(itds)})
@@ -322,6 +334,11 @@ class ImpulseResponseTraining:
                 cfg.rir.direct_itd = law is not None  # too few responses in sight: Woodworth's sphere, said in the log
                 log.write({"stage": "itd", "event": "law", "harmonics_us": None if law is None else [1e6 * c for c in self.itd_law],
                            "responses": int(in_sight.sum())})
+            if cfg.rir.direct_level:  # the direct sound's level: 1 / d^2 and the head's gain, from the same responses
+                law = fit_direct_level(theta.numpy()[in_sight], distance[in_sight], np.asarray(directs)[in_sight])
+                self.level_law = None if law is None else [float(c) for c in law]
+                cfg.rir.direct_level = law is not None  # too few responses in sight: B's level, said in the log
+                log.write({"stage": "level", "event": "fit", "coefficients_db": self.level_law, "responses": int(in_sight.sum())})
             if cfg.rir.direct_ild:  # the head shadow, from the same responses
                 self._in_sight = in_sight  # the straight path's test is fitted on them with the model's points (trainer)
                 law = fit_ild_law(theta.numpy()[in_sight], np.asarray(ilds)[in_sight])
@@ -369,6 +386,9 @@ class ImpulseResponseTraining:
         if not resumed and self.itd_law is not None:
             with torch.no_grad():
                 model.binauralizer.itd_law.copy_(torch.tensor(self.itd_law))
+        if not resumed and self.level_law is not None and model.binauralizer.level_law is not None:
+            with torch.no_grad():
+                model.binauralizer.level_law.copy_(torch.tensor(self.level_law))
         if not resumed and self.ild_law is not None:
             with torch.no_grad():
                 model.binauralizer.ild_law.copy_(torch.tensor(self.ild_law))
