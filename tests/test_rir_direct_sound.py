@@ -165,6 +165,7 @@ def test_the_fitted_head_shadow_makes_the_near_ear_louder_and_info_says_so(rende
     assert main(["info", str(renderer.path)]) == 0
     out = capsys.readouterr().out
     assert "direct sound's ILD: " in out
+    assert "direct sound's level: " in out and "20 log10 d dB" in out
     law = [1e6 * float(c) for c in renderer.model.binauralizer.itd_law]
     assert f"direct sound's ITD: {law[0]:.0f} sin theta {'-' if law[1] < 0 else '+'} {abs(law[1]):.0f} sin 2theta" in out
     assert "spherical head" not in out  # the law replaces the sphere

@@ -63,6 +63,8 @@ def summary(path) -> dict:
                        else [1e6 * float(c) for c in ckpt["binauralizer"]["itd_law"]]),
         "ild_law_db": (None if ckpt["binauralizer"].get("ild_law") is None
                        else [float(c) for c in ckpt["binauralizer"]["ild_law"]]),
+        "level_law_db": (None if ckpt["binauralizer"].get("level_law") is None
+                         else [float(c) for c in ckpt["binauralizer"]["level_law"]]),
         "ild_local_responses": (None if ckpt["binauralizer"].get("local_residual") is None
                                 else int(ckpt["binauralizer"]["local_residual"].numel())),
         "blocked_from_points": (None if ckpt["binauralizer"].get("sight_blocked") is None
@@ -147,6 +149,10 @@ def run(args: argparse.Namespace) -> int:
         local = info["ild_local_responses"]
         near = f", corrected near the {local} training responses in sight by their early ILDs" if local else ""
         print(f"  direct sound's ILD: {law} dB{near}, {where}")
+    if info["level_law_db"] is not None:
+        c0, c1, c2 = info["level_law_db"]
+        print(f"  direct sound's level: {c0:.1f} {'-' if c1 < 0 else '+'} {abs(c1):.1f} cos theta {'-' if c2 < 0 else '+'} "
+              f"{abs(c2):.1f} cos 2theta - 20 log10 d dB (d in the model's units; fitted to the training responses in sight)")
     if info["rt60_s"]:
         print("  learned RT60 " + ", ".join(f"{fc} Hz {v:.2f} s" for fc, v in info["rt60_s"].items()))
     if info["metrics"]:
