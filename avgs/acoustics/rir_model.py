@@ -244,7 +244,8 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
     (fractional, by FFT), gated before ``arrival + delay`` (a raised-cosine over :data:`FADE_SAMPLES`),
     and the energy the gate took from the ear's first window given back to its next half window
     (the STFT frames spread the direct sound's energy over a window on both sides of it); then the
-    direct sound made an impulse (:func:`sharpen_direct_sound`).
+    direct sound made an impulse (:func:`sharpen_direct_sound`); with ``direct.energy`` (the level law,
+    ``RIRConfig.direct_level``) at that energy, taken out of B's first window (:func:`_keep_window`).
 
     Last, the lagging ear's first :data:`DIRECT_SECONDS` become the leading ear's, delayed and scaled
     (:func:`cohere_early`): the ears then differ there by the ITD alone.
