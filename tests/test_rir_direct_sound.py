@@ -115,6 +115,27 @@ def renderer(quick_rir_scene, tmp_path_factory):
     return SceneRenderer.load(out)
 
 
+def edited(renderer, tmp_path, name: str, config: dict, buffers=(), missing_ok: bool = False) -> SceneRenderer:
+    """``renderer``'s checkpoint with ``config`` set in its ``rir`` section (a value of None: the key removed, as
+    an older checkpoint lacks it) and ``buffers`` of B removed (each must be there unless ``missing_ok``),
+    saved as ``name`` and loaded."""
+    from avgs.io.checkpoint import load_checkpoint, save_checkpoint
+
+    ckpt = load_checkpoint(renderer.path)
+    for key, value in config.items():
+        if value is None:
+            ckpt["config"]["rir"].pop(key, None)
+        else:
+            ckpt["config"]["rir"][key] = value
+    for key in buffers:
+        if missing_ok:
+            ckpt["binauralizer"].pop(key, None)
+        else:
+            del ckpt["binauralizer"][key]
+    save_checkpoint(ckpt, tmp_path / name)
+    return SceneRenderer.load(tmp_path / name)
+
+
 def test_a_response_starts_at_distance_over_c_with_the_itd_of_its_side(renderer):
     """The onset at distance / c; the early ITD the fitted head's (its law of the direction): the ears'
     early stretches differ by the delay alone, and the 5 ms window cuts their ends 0.7 ms apart."""
@@ -142,16 +163,10 @@ def test_the_fitted_head_shadow_makes_the_near_ear_louder_and_info_says_so(rende
     a source on the left gives a louder left ear in the first 5 ms than B's own ILD does (the same
     weights without the law), and mirrored the right; ``avgs info`` prints the law."""
     from avgs.cli import main
-    from avgs.io.checkpoint import load_checkpoint, save_checkpoint
 
     law = renderer.model.binauralizer.ild_law.double()
     assert float(law[0]) > 2.0  # the first harmonic: the near ear louder, by several dB at 90 degrees
-    ckpt = load_checkpoint(renderer.path)
-    ckpt["config"]["rir"]["direct_ild"] = False
-    for key in ILD_BUFFERS:
-        ckpt["binauralizer"].pop(key, None)
-    save_checkpoint(ckpt, tmp_path / "no_law.ckpt")
-    plain = SceneRenderer.load(tmp_path / "no_law.ckpt")
+    plain = edited(renderer, tmp_path, "no_law.ckpt", {"direct_ild": False}, ILD_BUFFERS, missing_ok=True)
     lo, hi = renderer.bounds
     listener = (lo + hi) / 2
     source = listener + np.array([0.0, 1.5, 0.0])
@@ -173,19 +188,9 @@ def test_the_fitted_head_shadow_makes_the_near_ear_louder_and_info_says_so(rende
 
 def test_a_checkpoint_without_it_is_unchanged(renderer, quick_rir_scene, tmp_path):
     """Older checkpoints (direct_sound absent: off) render as before: the noise phase from t = 0."""
-    from avgs.io.checkpoint import load_checkpoint, save_checkpoint
-
-    ckpt = load_checkpoint(renderer.path)
-    ckpt["config"]["rir"]["direct_sound"] = False
-    ckpt["config"]["rir"].pop("direct_ild", None)  # absent: an older checkpoint's
-    ckpt["config"]["rir"].pop("direct_itd", None)
-    ckpt["config"]["rir"].pop("ild_local", None)
-    ckpt["config"]["rir"].pop("ild_table", None)
-    ckpt["config"]["rir"].pop("direct_level", None)
-    for key in ITD_BUFFERS + ILD_BUFFERS + LEVEL_BUFFERS:
-        ckpt["binauralizer"].pop(key, None)
-    save_checkpoint(ckpt, tmp_path / "old.ckpt")
-    old = SceneRenderer.load(tmp_path / "old.ckpt")
+    absent = dict.fromkeys(("direct_ild", "direct_itd", "ild_local", "ild_table", "direct_level"))  # an older checkpoint's
+    old = edited(renderer, tmp_path, "old.ckpt", {"direct_sound": False, **absent},
+                 ITD_BUFFERS + ILD_BUFFERS + LEVEL_BUFFERS, missing_ok=True)
     assert old.model.binauralizer.itd_scale is None
     lo, hi = old.bounds
     with warnings.catch_warnings():
@@ -197,13 +202,7 @@ def test_a_checkpoint_without_it_is_unchanged(renderer, quick_rir_scene, tmp_pat
 def test_a_checkpoint_from_before_the_itd_law_keeps_the_sphere(renderer, tmp_path):
     """A checkpoint with the direct sound placed but no ITD law (direct_itd absent: off) gives the ears
     Woodworth's ITD with its fitted scale, as it did."""
-    from avgs.io.checkpoint import load_checkpoint, save_checkpoint
-
-    ckpt = load_checkpoint(renderer.path)
-    ckpt["config"]["rir"].pop("direct_itd")
-    del ckpt["binauralizer"]["itd_law"]
-    save_checkpoint(ckpt, tmp_path / "sphere.ckpt")
-    old = SceneRenderer.load(tmp_path / "sphere.ckpt")
+    old = edited(renderer, tmp_path, "sphere.ckpt", {"direct_itd": None}, ("itd_law",))
     assert old.model.binauralizer.itd_law is None
     lo, hi = old.bounds
     listener = (lo + hi) / 2
@@ -402,13 +401,7 @@ def test_the_direct_level_replaces_b_s_share_of_the_first_window(renderer, tmp_p
     """Where B's first frames hold the direct sound (a source 2.5 m away), the law's impulse comes out of
     that window: the response's whole energy is the one without the law (the same weights, the law
     removed) within 0.5 dB; near the source (0.4 m) the law raises it."""
-    from avgs.io.checkpoint import load_checkpoint, save_checkpoint
-
-    ckpt = load_checkpoint(renderer.path)
-    ckpt["config"]["rir"]["direct_level"] = False
-    del ckpt["binauralizer"]["level_law"]
-    save_checkpoint(ckpt, tmp_path / "no_level.ckpt")
-    plain = SceneRenderer.load(tmp_path / "no_level.ckpt")
+    plain = edited(renderer, tmp_path, "no_level.ckpt", {"direct_level": False}, ("level_law",))
     assert plain.model.binauralizer.level_law is None
     lo, hi = renderer.bounds
     listener = (lo + hi) / 2
