@@ -106,18 +106,15 @@ def sine_series(theta: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor
     return (torch.sin(theta[..., None] * k) * coefficients.to(theta)).sum(-1)
 
 
-def fit_sine_series(theta, values, harmonics: int, least: int, robust: bool = False) -> np.ndarray | None:
-    """Least-squares coefficients ``[harmonics]`` of :func:`sine_series` for ``values [M]`` measured at
-    ``theta [M]``; None with fewer than ``least`` finite pairs or a fit that is not finite. ``robust``:
-    fitted again without the pairs more than three median absolute deviations off the first fit (if
-    ``least`` remain)."""
-    theta = np.asarray(theta, dtype=np.float64).reshape(-1)
-    values = np.asarray(values, dtype=np.float64).reshape(-1)
-    keep = np.isfinite(theta) & np.isfinite(values)
+def fit_linear(basis: np.ndarray, values: np.ndarray, least: int, robust: bool = False) -> np.ndarray | None:
+    """Least-squares coefficients ``[K]`` of ``basis [M, K] @ coef = values [M]`` over the rows where both are
+    finite; None with fewer than ``least`` such rows or a fit that is not finite. ``robust``: fitted again
+    without the rows more than three median absolute deviations off the first fit (if ``least`` remain).
+    The fit of every law of the direct sound (:func:`fit_sine_series`, :func:`fit_direct_level`)."""
+    keep = np.all(np.isfinite(basis), axis=-1) & np.isfinite(values)
     if keep.sum() < least:
         return None
-    theta, values = theta[keep], values[keep]
-    basis = np.sin(theta[:, None] * np.arange(1, harmonics + 1))  # [M, K]
+    basis, values = basis[keep], values[keep]
     coef, *_ = np.linalg.lstsq(basis, values, rcond=None)
     if robust:
         residual = np.abs(values - basis @ coef)
@@ -125,6 +122,14 @@ def fit_sine_series(theta, values, harmonics: int, least: int, robust: bool = Fa
         if inliers.sum() >= least:
             coef, *_ = np.linalg.lstsq(basis[inliers], values[inliers], rcond=None)
     return coef if np.all(np.isfinite(coef)) else None
+
+
+def fit_sine_series(theta, values, harmonics: int, least: int, robust: bool = False) -> np.ndarray | None:
+    """Least-squares coefficients ``[harmonics]`` of :func:`sine_series` for ``values [M]`` measured at
+    ``theta [M]`` (:func:`fit_linear`: finite pairs only, at least ``least``, ``robust`` as there)."""
+    theta = np.asarray(theta, dtype=np.float64).reshape(-1)
+    values = np.asarray(values, dtype=np.float64).reshape(-1)
+    return fit_linear(np.sin(theta[:, None] * np.arange(1, harmonics + 1)), values, least, robust)  # basis [M, K]
 
 
 ITD_HARMONICS = 3
@@ -237,10 +242,7 @@ def fit_direct_level(theta, distance, energy) -> np.ndarray | None:
     theta = np.asarray(theta, dtype=np.float64).reshape(-1)
     distance = np.asarray(distance, dtype=np.float64).reshape(-1)
     energy = np.asarray(energy, dtype=np.float64).reshape(-1)
-    keep = np.isfinite(theta) & np.isfinite(distance) & (distance > 0) & np.isfinite(energy) & (energy > 0)
-    if keep.sum() < 12:
-        return None
-    theta, distance, energy = theta[keep], distance[keep], energy[keep]
     basis = np.stack([np.ones_like(theta), np.cos(theta), np.cos(2.0 * theta)], axis=-1)  # [M, 3]
-    coef, *_ = np.linalg.lstsq(basis, 10.0 * np.log10(energy) + 20.0 * np.log10(distance), rcond=None)
-    return coef if np.all(np.isfinite(coef)) else None
+    with np.errstate(divide="ignore", invalid="ignore"):  # an energy or distance <= 0: not finite, left out
+        db = 10.0 * np.log10(energy) + 20.0 * np.log10(distance)  # [M]
+    return fit_linear(basis, db, least=12)

@@ -274,9 +274,9 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
     out[..., lo:hi] = gated * (1.0 + (gain[..., None] - 1.0) * back)
     ild = None if direct.ild is None else direct.ild.detach().double().cpu()  # [B] dB, beside start on the CPU
     energy = None if direct.energy is None else direct.energy.detach().double().cpu()  # [B]
-    early = (out[..., lo:hi].square() * window).sum((-1, -2))  # [B] B's first window, both ears: it holds the direct sound
     sharp = sharpen_direct_sound(out, start, fs, ild, energy)
-    if energy is not None:  # the law's impulse comes out of that window, not on top of it
+    if energy is not None:  # the law's impulse comes out of B's first window (both ears), which holds it, not on top of it
+        early = (out[..., lo:hi].square() * window).sum((-1, -2))  # [B]
         sharp = _keep_window(sharp, early, start, fs, n_win, torch.isfinite(energy))
     out = cohere_early(sharp, start, fs, ild)
     return out.to(device=h.device, dtype=h.dtype)

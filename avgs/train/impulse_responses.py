@@ -250,11 +250,12 @@ def speed_of_sound(rir_scene) -> float:
     return float(value) if isinstance(value, (int, float)) and math.isfinite(value) and value > 0 else SPEED_OF_SOUND
 
 
-def direct_energy(h: np.ndarray, fs: float, itd: float) -> float:
+def direct_energy(h: np.ndarray, fs: float, itd: float, first: int | None = None) -> float:
     """Both ears' energy of a response ``h [2, L]`` over its direct sound's stretch, as
     :func:`~avgs.acoustics.rir_model.sharpen_direct_sound` takes it: from FADE_SAMPLES before the onset to
-    IMPULSE_SECONDS after, and the ITD ``itd`` (seconds) longer, which the lagging ear's stretch starts later."""
-    first = spatial.onset(h)
+    IMPULSE_SECONDS after, and the ITD ``itd`` (seconds) longer, which the lagging ear's stretch starts later.
+    ``first``: the onset sample when the caller has it (:func:`avgs.evaluation.spatial.onset`)."""
+    first = spatial.onset(h) if first is None else int(first)
     lo = max(0, first - FADE_SAMPLES)
     hi = min(h.shape[-1], first + int(round((IMPULSE_SECONDS + abs(itd)) * fs)))
     return float(np.sum(np.asarray(h[:, lo:hi], dtype=np.float64) ** 2))
@@ -318,10 +319,11 @@ class ImpulseResponseTraining:
             itds, ilds, onsets, directs = [], [], [], []
             for i in range(0, n, CHUNK):
                 for h in self.responses.read("train", np.arange(i, min(i + CHUNK, n))):
+                    first = spatial.onset(h)
                     itds.append(spatial.response_itd(h, fs))
                     ilds.append(spatial.early_ild(h, fs))
-                    onsets.append(spatial.onset(h) / fs)
-                    directs.append(direct_energy(h, fs, itds[-1]))
+                    onsets.append(first / fs)
+                    directs.append(direct_energy(h, fs, itds[-1], first))
             self.itd_scale = fit_scale(theta.numpy(), itds)
             log.write({"stage": "itd", "event": "fit", "scale_us": self.itd_scale * 1e6, "default_us": DEFAULT_SCALE * 1e6,
                        "responses": len(itds)})
