@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from scipy.optimize import least_squares
 
-from avgs.acoustics.interaural import fit_local_scale, local_correction, local_features
+from avgs.acoustics.interaural import fit_ild_law, fit_local_scale, local_correction, local_features
 from avgs.data.frame import signed_direction
 from avgs.data.rir import RIRScene
 from avgs.evaluation import spatial
@@ -48,6 +48,7 @@ def measured(scene: RIRScene, split: str) -> dict:
 
 
 def law(theta, coef):
+    """:func:`avgs.acoustics.interaural.ild_law` on numpy values (evaluated per path in the loops below)."""
     return np.sin(np.asarray(theta)[..., None] * np.arange(1, len(coef) + 1)) @ coef
 
 
@@ -111,7 +112,7 @@ def main(argv: list[str]) -> int:
         fp = [np.asarray(p, dtype=np.float64) for p in spec.get("footprint", [])]
         walls = [(fp[i], fp[(i + 1) % len(fp)]) for i in range(len(fp))]
         train = measured(scene, "train")
-        coef = np.linalg.lstsq(np.sin(train["theta"][:, None] * np.arange(1, 4)), train["ild"], rcond=None)[0]
+        coef = fit_ild_law(train["theta"], train["ild"])  # what training fits
         fit = least_squares(lambda p: with_images(p, train, height, walls) - train["ild"], np.r_[coef, 0.5, 0.5, 0.5],
                             bounds=([-40] * 3 + [0] * 3, [40] * 3 + [1.5] * 3), loss="soft_l1")
         at = features(train)
