@@ -46,6 +46,45 @@ def test_bench_quick_writes_the_report(tmp_path, capsys, one_source_ckpt):
     assert (out / "work" / ".gitignore").read_text() == "*\n"  # trained bench models stay out of git
 
 
+def test_a_partial_run_keeps_the_skipped_sections_with_their_run(tmp_path, capsys):
+    """``--skip`` keeps each skipped section from OUT/results.json (here the repository's own, a real run), marked
+    with that run's date and command, through a second partial run too; a --quick run does not mix with it, and a
+    file that is not a bench's results is said so, not fatal."""
+    from pathlib import Path
+
+    shipped = Path(__file__).resolve().parents[1] / "benchmarks" / "results.json"
+    before = json.loads(shipped.read_text())
+    out = tmp_path / "bench"
+    out.mkdir()
+    (out / "results.json").write_text(shipped.read_text())
+    skip = ["--skip", "latency", "--skip", "speed-error", "--skip", "training", "--presets", "", "--out", str(out)]
+    for _ in range(2):  # the second run carries what the first carried, with the first provenance
+        assert cli_main(["bench", *skip]) == 0
+        results = json.loads((out / "results.json").read_text())
+        for key in ("latency", "demo", "speed_error", "training"):
+            assert results[key] == before[key]
+        origin = {"date_utc": before["machine"]["date_utc"], "command": before["machine"]["command"]}
+        assert results["carried"] == {key: origin for key in ("latency", "demo", "speed_error", "training")}
+        assert results["machine"]["date_utc"] != origin["date_utc"]  # this run's own machine record
+    report = (out / "REPORT.md").read_text()
+    assert [line[3:] for line in report.splitlines() if line.startswith("## ")] == list(SECTIONS)
+    assert report.count(f"*Kept from the run of {origin['date_utc']} (`{origin['command']}`)") == 4
+    assert f"median **{before['latency']['cpu']['render']['median_ms']:.2f} ms** per pose" in report
+    assert "(not run)" not in report
+
+    quick = tmp_path / "quick"
+    quick.mkdir()
+    (quick / "results.json").write_text(shipped.read_text())
+    capsys.readouterr()
+    assert cli_main(["bench", "--quick", *skip[:-1], str(quick)]) == 0
+    assert "is from a run without --quick" in capsys.readouterr().out
+    results = json.loads((quick / "results.json").read_text())
+    assert "carried" not in results and "latency" not in results
+    (quick / "results.json").write_text("{not json")
+    assert cli_main(["bench", *skip[:-1], str(quick)]) == 0
+    assert "is not a results.json of avgs bench" in capsys.readouterr().out
+
+
 def test_headline_compares_avgs_with_the_simulator():
     rows = [
         {"label": "AV-GS vicinity 15 %", "family": "AV-GS vicinity", "latency_ms": 2.0, "MAG": 0.5, "ENV": 0.1},

@@ -186,6 +186,14 @@ def _synthesis_line(ref: dict, summary: list[dict]) -> str:
 # -- the report -------------------------------------------------------------------------
 
 
+def _carried(results: dict, key: str) -> list[str]:
+    """The line that says a section was kept from an earlier run (``avgs bench --skip``), or nothing."""
+    origin = results.get("carried", {}).get(key)
+    if not origin:
+        return []
+    return [f"*Kept from the run of {origin['date_utc']} (`{origin['command']}`): this run skipped it.*", ""]
+
+
 def write_report(results: dict, out_dir: str | Path) -> Path:
     """Write REPORT.md, the PNGs and results.json into ``out_dir``; returns the report's path."""
     out = Path(out_dir)
@@ -200,6 +208,8 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
          f"Command: `{m['command']}`  ", f"Date: {m['date_utc']}", ""]
 
     L += ["## Headline", "", headline(summary), ""]
+    if summary and results.get("carried", {}).get("speed_error"):
+        L += [f"(Speed against error from the run of {results['carried']['speed_error']['date_utc']}.)", ""]
     demo = lat.get("cpu")
     if demo:
         L += [f"Inference on the demo scene ({results['demo']['source']}, {demo['points']} audio points, k = {demo['k']}): "
@@ -211,6 +221,7 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
     L += [""]
 
     L += ["## Inference latency", ""]
+    L += _carried(results, "latency")
     if lat:
         L += ["One pose = `SceneRenderer.render` of a 1 s clip at a new listener position (source fixed: C_S cached). "
               "Median and 95th percentile over repeats.", ""]
@@ -272,6 +283,7 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
         L += ["(not run)", ""]
 
     L += ["## Speed against error", ""]
+    L += _carried(results, "speed_error")
     if summary:
         scenes = [f"{sc['scene']} ({sc['train_clips']} train / {sc['val_clips']} val clips)" for sc in se["scenes"]]
         L += [f"Scenes: {', '.join(scenes)}. MAG and ENV are means over the val clips (then over scenes); latency is the "
@@ -294,6 +306,7 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
         L += [se.get("note", "(not run)"), ""]
 
     L += ["## Point budgets", ""]
+    L += _carried(results, "speed_error")
     if budgets:
         L += ["The vicinity-15 % model: all points; pruned exactly to the walkable area (every vicinity a listener or the "
               "source can have there is kept, k fixed: identical output inside the area); then random subsets "
@@ -309,6 +322,7 @@ def write_report(results: dict, out_dir: str | Path) -> Path:
         L += ["(not run)", ""]
 
     L += ["## Training throughput", ""]
+    L += _carried(results, "training")
     tr = results.get("training", [])
     if tr:
         rows = [[t.get("stage"), t.get("device"), t.get("init", ""), t.get("points", t.get("gaussians", "")),

@@ -30,7 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=int, help="Timed calls per latency figure (default 100, --quick 30).")
     parser.add_argument("--threads", type=int, default=2, help="Torch CPU threads (default 2: our machines' cores).")
     parser.add_argument("--skip", action="append", default=[], choices=("latency", "speed-error", "training", "simulator"),
-                        help="Leave a section out (repeatable).")
+                        help="Leave a section out (repeatable): the report keeps it from OUT/results.json, marked with "
+                             "the run that measured it, where that file has it.")
     parser.add_argument("--no-cuda", action="store_true", help="Do not measure on CUDA even when it is present.")
     parser.add_argument("--seed", type=int, default=0, help="Seed of generated scenes.")
 
@@ -105,6 +106,37 @@ def demo_renderer(args, scenes_result: dict | None, work: Path, settings: dict, 
     return SceneRenderer.load(path), f"{args.ckpt} absent; untrained {n}-point model"
 
 
+SKIPPABLE = {"latency": ("latency", "demo"), "speed-error": ("speed_error",), "training": ("training",)}
+"``--skip`` choices whose section a run can keep from the last one: the results.json keys of each."
+
+
+def carry_skipped(results: dict, previous_path: Path, skipped: list[str], say) -> None:
+    """Copy the sections ``skipped`` this run from the results.json at ``previous_path`` into ``results``, each
+    with the date and command of the run that measured it (``results["carried"]``): a partial run refreshes
+    what it measured and loses nothing else. A section that run had carried keeps its first provenance."""
+    import json
+
+    wanted = [key for s in dict.fromkeys(skipped) for key in SKIPPABLE.get(s, ())]
+    if not wanted or not previous_path.is_file():
+        return
+    try:
+        previous = json.loads(previous_path.read_text())
+        machine = previous["machine"]
+        origin = {"date_utc": machine["date_utc"], "command": machine["command"]}
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        say(f"not keeping the skipped sections: {previous_path} is not a results.json of avgs bench ({exc})")
+        return
+    if bool(previous.get("quick")) != bool(results["quick"]):
+        say(f"not keeping the skipped sections: {previous_path} is from a run with{'' if previous.get('quick') else 'out'} --quick")
+        return
+    carried = results.setdefault("carried", {})
+    for key in wanted:
+        if key in previous:
+            results[key] = previous[key]
+            carried[key] = previous.get("carried", {}).get(key, origin)
+            say(f"kept '{key}' from the run of {carried[key]['date_utc']}")
+
+
 def print_tables(results: dict) -> None:
     lat = results.get("latency", {})
     for dev, d in lat.items():
@@ -146,6 +178,7 @@ def run(args: argparse.Namespace) -> int:
 
     results: dict = {"quick": bool(args.quick), "machine": machine_info(), "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in settings.items()}, "notes": []}
     notes = results["notes"]
+    carry_skipped(results, out / "results.json", args.skip, say)
 
     scene_dirs = [Path(d) for d in args.data]
     if "speed-error" not in args.skip:
@@ -170,9 +203,9 @@ def run(args: argparse.Namespace) -> int:
     elif "speed-error" not in args.skip:
         results["speed_error"] = {"note": "Not run: no scenes (pass --data DATA_ROOT/SCENE_ID, or install the generator)."}
 
-    renderer, source = demo_renderer(args, se, work, settings, say)
-    results["demo"] = {"source": source, "points": int(len(renderer.points))}
     if "latency" not in args.skip:
+        renderer, source = demo_renderer(args, se, work, settings, say)
+        results["demo"] = {"source": source, "points": int(len(renderer.points))}
         results["latency"] = {"cpu": latency_mod.measure(renderer, repeats=settings["repeats"], long_seconds=settings["long_seconds"], progress=say)}
         if cuda:
             from avgs.render.renderer import SceneRenderer
@@ -226,8 +259,9 @@ def run(args: argparse.Namespace) -> int:
         "so float32 stays the default; see the precision rows.",
         "The viewer's drag-to-audio latency (avgs_viewer.bench) is the render time above plus at most one audio block "
         "and the crossfade; the viewer renders on a worker thread that keeps only the newest request.",
-        "The demo checkpoint: " + source + ".",
     ]
+    if "demo" in results:
+        notes.append("The demo checkpoint: " + results["demo"]["source"] + ".")
     if hasattr(os, "getloadavg"):
         results["machine"]["load_average_1m_at_end"] = round(os.getloadavg()[0], 2)
     report = write_report(results, out)
