@@ -14,7 +14,7 @@ import torch
 from avgs.acoustics.interaural import fit_itd_law, interaural_delay, itd_law, local_correction
 from avgs.acoustics.rir_binauralizer import ILD_BUFFERS, ITD_BUFFERS, LEVEL_BUFFERS
 from avgs.acoustics.rir_model import (FADE_SAMPLES, DirectSound, cohere_early, fractional_delay, place_direct_sound,
-                                      sharpen_direct_sound)
+                                      sharpen_direct_sound, whole_sample_delay)
 from avgs.config import STFT
 from avgs.evaluation import spatial
 from avgs.render.renderer import SceneRenderer
@@ -50,6 +50,19 @@ def test_fractional_delay_of_known_signals():
     moved = fractional_delay(click, torch.tensor([-3.5, 7.25])).numpy()  # [2, L]
     assert np.max(np.abs(moved[:, L // 2 :])) < 1e-3  # no wrap-around into the response's end
     assert np.argmax(np.abs(moved[1])) == 7 and moved[1, 7] == pytest.approx(np.sinc(0.25), abs=1e-3)
+
+
+def test_whole_sample_delay_of_known_signals():
+    """Each row moves by its delay rounded to whole samples, either way, zeros filling in; the samples are the
+    input's own (no interpolation), and a delay of the whole length or more leaves silence."""
+    x = torch.arange(1.0, 11.0).repeat(4, 1)  # [4, 10]
+    y = whole_sample_delay(x, torch.tensor([0.0, 2.4, -3.6, 12.0]))
+    assert y[0].tolist() == x[0].tolist()
+    assert y[1].tolist() == [0, 0, 1, 2, 3, 4, 5, 6, 7, 8]
+    assert y[2].tolist() == [5, 6, 7, 8, 9, 10, 0, 0, 0, 0]
+    assert y[3].tolist() == [0.0] * 10
+    pair = whole_sample_delay(x[:2].reshape(1, 2, 10), torch.tensor([[0.0, 1.0]]))  # [B, 2, L] as the responses
+    assert pair.shape == (1, 2, 10) and pair[0, 1, 1:].tolist() == x[1, :9].tolist()
 
 
 def test_the_ild_law_is_fitted_from_known_ilds_and_the_impulse_carries_it():

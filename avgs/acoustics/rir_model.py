@@ -241,26 +241,28 @@ def _phases(n_freq: int, n_frames: int, stft: STFTConfig, direct: DirectSound | 
 
 def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = STFT) -> torch.Tensor:
     """Responses ``[B, 2, L]`` with nothing before the direct sound: each ear delayed by its ITD share
-    (fractional, by FFT), gated before ``arrival + delay`` (a raised-cosine over :data:`FADE_SAMPLES`),
+    (to the nearest sample: :func:`whole_sample_delay`), gated before ``arrival + delay`` (fractional; a
+    raised-cosine over :data:`FADE_SAMPLES`),
     and the energy the gate took from the ear's first window given back to its next half window
     (the STFT frames spread the direct sound's energy over a window on both sides of it); then the
     direct sound made an impulse (:func:`sharpen_direct_sound`); with ``direct.energy`` (the level law,
     ``RIRConfig.direct_level``) at that energy, taken out of B's first window (:func:`_keep_window`).
 
-    Last, the lagging ear's first :data:`DIRECT_SECONDS` become the leading ear's, delayed and scaled
-    (:func:`cohere_early`): the ears then differ there by the ITD alone.
+    Last, the lagging ear's first :data:`DIRECT_SECONDS` become the leading ear's, delayed by the exact
+    (fractional) difference of the arrivals and scaled (:func:`cohere_early`): the ears then differ there
+    by the ITD alone. So the ITD is exact where it is heard and measured; after those milliseconds each ear
+    is B's diffuse response (a noise phase), which a fraction of a sample does not change. (A fractional
+    delay of the whole ear by FFT took 1.1 ms of the pose's 3.6 ms waveform.)
 
-    The delay is one FFT of the whole response (float32, :func:`fractional_delay`); the gate and the
-    energy's return change only the samples from the gate's opening to a window after the arrival,
-    and are worked out there, in float64 (the explorer makes one of these per pose of a drag)."""
+    The gate and the energy's return change only the samples from the gate's opening to a window after
+    the arrival, and are worked out there, in float64 (the explorer makes one of these per pose of a drag)."""
     fs, n_win = float(stft.sample_rate), stft.n_fft
     B, _, L = h.shape
     delays = direct.delays.detach().double().cpu()  # [B, 2] seconds
-    y = fractional_delay(h.detach().float().cpu(), delays * fs)  # [B, 2, L] float32
+    y = whole_sample_delay(h.detach().float().cpu(), delays * fs)  # [B, 2, L] float32
     start = (direct.arrival.detach().double().cpu()[:, None] + delays) * fs  # [B, 2] samples
     # Before the earliest gate every sample is 0; from a window after the latest arrival on, y as it is.
-    lo = min(L, max(0, int(math.floor(float(start.min()))) - FADE_SAMPLES))
-    hi = min(L, max(lo, int(math.ceil(float(start.max()) + n_win)) + 1))
+    lo, hi = _arrival_span(start, L, n_win)
     span = y[..., lo:hi].double()  # [B, 2, S]
     t = torch.arange(lo, hi, dtype=torch.float64)
     gated = span * _gate(t, start[..., None])
@@ -293,8 +295,7 @@ def _keep_window(y: torch.Tensor, early: torch.Tensor, start: torch.Tensor, fs: 
     of the window ramp back to the ear's own level."""
     B, _, L = y.shape
     n_stretch = IMPULSE_SECONDS * fs
-    lo = max(0, int(math.floor(float(start.min()))) - FADE_SAMPLES)
-    hi = min(L, int(math.ceil(float(start.max()) + n_win)) + 1)
+    lo, hi = _arrival_span(start, L, n_win)
     if lo >= hi:
         return y
     t = torch.arange(lo, hi, dtype=torch.float64) - start[..., None]  # [B, 2, S] samples from each ear's arrival
@@ -313,11 +314,34 @@ def _keep_window(y: torch.Tensor, early: torch.Tensor, start: torch.Tensor, fs: 
     return out
 
 
+def _arrival_span(start: torch.Tensor, L: int, after: float, pad: int = 0) -> tuple[int, int]:
+    """The samples ``lo .. hi - 1`` (within ``0 .. L``) that the direct sound's work changes: from
+    :data:`FADE_SAMPLES` before the earliest arrival in ``start`` (samples, fractional) to ``after`` samples
+    after the latest, widened by ``pad`` on both sides. Empty (``lo == hi``) when the arrivals are past the end."""
+    lo = min(L, max(0, int(math.floor(float(start.min()))) - FADE_SAMPLES - pad))
+    return lo, min(L, max(lo, int(math.ceil(float(start.max()) + after)) + pad + 1))
+
+
 def _gate(t: torch.Tensor, start) -> torch.Tensor:
     """The gate before an arrival at ``start`` (samples) at sample times ``t``: 0, then a raised cosine over
     :data:`FADE_SAMPLES` up to 1 at ``start``."""
     opening = ((t - (start - FADE_SAMPLES)) / FADE_SAMPLES).clamp(0.0, 1.0)
     return 0.5 - 0.5 * torch.cos(math.pi * opening)
+
+
+def whole_sample_delay(x: torch.Tensor, samples: torch.Tensor) -> torch.Tensor:
+    """``x [..., L]`` delayed by ``samples [...]`` rounded to whole samples (either sign), zeros where
+    nothing arrives yet (or any more)."""
+    L = x.shape[-1]
+    rows = x.reshape(-1, L)  # [R, L]
+    shift = torch.round(samples.detach().double().cpu().expand(x.shape[:-1]).reshape(-1)).long().tolist()  # [R]
+    out = torch.zeros_like(rows)
+    for r, k in enumerate(shift):
+        if 0 <= k < L:
+            out[r, k:] = rows[r, : L - k]
+        elif -L < k < 0:
+            out[r, :k] = rows[r, -k:]
+    return out.reshape(x.shape)
 
 
 def fractional_delay(x: torch.Tensor, samples: torch.Tensor) -> torch.Tensor:
@@ -361,8 +385,7 @@ def sharpen_direct_sound(y: torch.Tensor, start: torch.Tensor, fs: float, ild: t
     y = y.double()
     start = start.double()
     # Only the samples around the arrivals change: work on that span (the rest of y is returned as it is).
-    lo = max(0, int(math.floor(float(start.min()))) - FADE_SAMPLES - IMPULSE_TAPS)
-    hi = min(L, int(math.ceil(float(start.max()) + IMPULSE_SECONDS * fs)) + IMPULSE_TAPS + 1)
+    lo, hi = _arrival_span(start, L, IMPULSE_SECONDS * fs, pad=IMPULSE_TAPS)
     if lo >= hi:
         return y
     span = y[..., lo:hi]  # [B, 2, S]
