@@ -299,7 +299,7 @@ def test_bench_reports_the_source_aware_render(renderer, tmp_path):
 
     out = measure(renderer, repeats=3)
     assert out["task"] == "rir" and out["source_aware"]["median_ms"] > 0
-    assert {"vicinity + field", "network", "waveform", "convolution"} <= set(out["stages"])
+    assert {"vicinity + field", "network", "waveform", "direct sound", "convolution"} <= set(out["stages"])
 
 
 # -- physics (slow) -------------------------------------------------------------------

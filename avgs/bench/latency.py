@@ -124,7 +124,7 @@ def random_sources(renderer, n: int, seed: int = 1) -> list[np.ndarray]:
 def measure_source_aware(renderer, repeats: int = 50, progress=None) -> dict:
     """Latency of a source-aware renderer (task rir): render with a new source every call, and its stages."""
     from avgs.acoustics.impulse_response import convolve
-    from avgs.acoustics.rir_model import response_waveform
+    from avgs.acoustics.rir_model import place_direct_sound, response_waveform
 
     dev = renderer.device
     mono = test_signal(1.0, renderer.sample_rate)
@@ -177,6 +177,8 @@ def measure_source_aware(renderer, repeats: int = 50, progress=None) -> dict:
             log_mag = run("network", lambda: model.binauralizer(lis, src[None], theta, yaw_t, ctx[0], cache.frequency))
             h = run("waveform", lambda: response_waveform(model.magnitudes(log_mag.float()).cpu(), rc.length, renderer.stft,
                                                           rc.phase, rc.phase_iterations)[0])
+            if model.direct_sound(lis, yaw_t, src[None]) is not None:  # placed by geometry (RIRConfig.direct_sound)
+                run("direct sound", lambda: place_direct_sound(h[None], model.direct_sound(lis, yaw_t, src[None]), renderer.stft))
             run("convolution", lambda: convolve(torch.from_numpy(mono), h))
     out["stages"] = {k: v.to_dict() for k, v in sw.timings().items()}
     return out

@@ -49,22 +49,31 @@ def _plt():
 
 
 def plot_latency(latency: dict, path: Path) -> Path:
-    """Stacked stage bars per device, and the before/after paths (ms per pose)."""
+    """Stacked stage bars per device (the stages the latency section timed: a mask model's or an
+    impulse-response model's), and, where they were timed, the before/after paths (ms per pose)."""
     plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    ax = axes[0]
-    stages = ("vicinity", "field", "binauralizer", "impulse response", "synthesis")
     devices = list(latency)
+    stages = list(dict.fromkeys(s for d in devices for s in latency[d].get("stages", {})))
+    paths = any(latency[d].get("paths") for d in devices)
+    fig, axes = plt.subplots(1, 2 if paths else 1, figsize=(10 if paths else 6, 3.6), squeeze=False)
+    axes = axes[0]
+    ax = axes[0]
     left = np.zeros(len(devices))
     for s in stages:
         vals = np.array([latency[d]["stages"].get(s, {}).get("median_ms", 0.0) for d in devices])
         ax.barh(devices, vals, left=left, label=s)
         left += vals
     totals = [latency[d]["render"]["median_ms"] for d in devices]
-    ax.barh(devices, np.maximum(np.array(totals) - left, 0), left=left, label="other (Python, copies)", color="lightgray")
+    ax.barh(devices, np.maximum(np.array(totals) - left, 0), left=left, label="the rest of the render", color="lightgray")
     ax.set_xlabel("ms per pose (median, 1 s clip)")
     ax.set_title("where the time goes")
     ax.legend(fontsize=7, loc="lower right")
+    if not paths:
+        fig.tight_layout()
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=90)
+        plt.close(fig)
+        return path
     ax = axes[1]
     labels, vals = [], []
     for d in devices:
