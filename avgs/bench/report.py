@@ -68,24 +68,19 @@ def plot_latency(latency: dict, path: Path) -> Path:
     ax.set_xlabel("ms per pose (median, 1 s clip)")
     ax.set_title("where the time goes")
     ax.legend(fontsize=7, loc="lower right")
-    if not paths:
-        fig.tight_layout()
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=90)
-        plt.close(fig)
-        return path
-    ax = axes[1]
-    labels, vals = [], []
-    for d in devices:
-        for name, t in latency[d].get("paths", {}).items():
-            labels.append(f"{d}: {name}")
-            vals.append(t["median_ms"])
-        labels.append(f"{d}: cached (render)")
-        vals.append(latency[d]["render"]["median_ms"])
-    ax.barh(labels, vals, color=["tab:gray" if "now" not in label else "tab:green" for label in labels])
-    ax.set_xlabel("ms per pose (median)")
-    ax.set_title("before / after")
-    ax.tick_params(axis="y", labelsize=7)
+    if paths:
+        ax = axes[1]
+        labels, vals = [], []
+        for d in devices:
+            for name, t in latency[d].get("paths", {}).items():
+                labels.append(f"{d}: {name}")
+                vals.append(t["median_ms"])
+            labels.append(f"{d}: cached (render)")
+            vals.append(latency[d]["render"]["median_ms"])
+        ax.barh(labels, vals, color=["tab:gray" if "now" not in label else "tab:green" for label in labels])
+        ax.set_xlabel("ms per pose (median)")
+        ax.set_title("before / after")
+        ax.tick_params(axis="y", labelsize=7)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90)
