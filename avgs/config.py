@@ -227,6 +227,8 @@ class RIRConfig:
     "Entries of that correction (training responses in sight; set at training, stored with the checkpoint; 0: the law alone)."
     direct_level: bool = True
     "With direct_sound: the direct sound's energy from geometry where the straight path is free, 1 / d^2 times a gain of the direction (avgs.acoustics.interaural.direct_level_db) fitted to the training responses in sight of the source, taken out of B's first window, which holds it smeared, not from B's first frames alone, which a network of the distance extrapolates near the source (the level against distance, max error over 0.5-5 m, three seeds: u_room 3.8-4.4 -> 1.8-2.2 dB, l_room 1.6-2.7 -> 0.4-0.6 dB; docs/rir_level_distance.md)."
+    wall_loss: bool = True
+    "With direct_sound: a learned log magnitude per frame that each wall on the straight path adds to the response (the scene's points along the path, within avgs.acoustics.line_of_sight.wall_radius, over the count from which a training pair was behind a wall, at most 3), learned from zero with the network: a term it cannot bend, as the distance law, where positions alone interpolate the level of a held-out source behind a wall from its neighbours in the listener's room (three_rooms, held-out sources behind the wall, three seeds: level error 2.95 -> 2.06 dB, bias +2.3 -> +1.4 dB; docs/rir_level_distance.md). No pair behind a wall in training: no term."
     phase: Literal["noise", "griffin-lim"] = "noise"
     "Waveform from the predicted magnitudes: a fixed-seed noise phase, or that phase refined by fast Griffin-Lim (same T60 / C50 / EDT on rect_small, 2.4x the render time)."
     phase_iterations: int = 4
@@ -393,7 +395,7 @@ ADDED_LATER = {
     "gaussians": {"cpu_max_pixels": 0},
     "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0, "direct_sound": False,
             "direct_ild": False, "direct_itd": False, "ild_local": False, "ild_table": 0,
-            "direct_level": False},
+            "direct_level": False, "wall_loss": False},
 }
 "Fields absent from older stored configurations, with the value that the older code used."
 

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from avgs.acoustics.interaural import fit_itd_law, interaural_delay, itd_law, local_correction
-from avgs.acoustics.rir_binauralizer import ILD_BUFFERS, ITD_BUFFERS, LEVEL_BUFFERS
+from avgs.acoustics.rir_binauralizer import ILD_BUFFERS, ITD_BUFFERS, LEVEL_BUFFERS, WALL_BUFFERS
 from avgs.acoustics.rir_model import (FADE_SAMPLES, DirectSound, cohere_early, fractional_delay, place_direct_sound,
                                       sharpen_direct_sound, whole_sample_delay)
 from avgs.config import STFT
@@ -194,6 +194,7 @@ def test_the_fitted_head_shadow_makes_the_near_ear_louder_and_info_says_so(rende
     out = capsys.readouterr().out
     assert "direct sound's ILD: " in out
     assert "direct sound's level: " in out and "20 log10 d dB" in out
+    assert "walls: none told apart in training" in out  # one room: B's wall term has nothing to count
     law = [1e6 * float(c) for c in renderer.model.binauralizer.itd_law]
     assert f"direct sound's ITD: {law[0]:.0f} sin theta {'-' if law[1] < 0 else '+'} {abs(law[1]):.0f} sin 2theta" in out
     assert "spherical head" not in out  # the law replaces the sphere
@@ -201,9 +202,9 @@ def test_the_fitted_head_shadow_makes_the_near_ear_louder_and_info_says_so(rende
 
 def test_a_checkpoint_without_it_is_unchanged(renderer, quick_rir_scene, tmp_path):
     """Older checkpoints (direct_sound absent: off) render as before: the noise phase from t = 0."""
-    absent = dict.fromkeys(("direct_ild", "direct_itd", "ild_local", "ild_table", "direct_level"))  # an older checkpoint's
+    absent = dict.fromkeys(("direct_ild", "direct_itd", "ild_local", "ild_table", "direct_level", "wall_loss"))  # an older checkpoint's
     old = edited(renderer, tmp_path, "old.ckpt", {"direct_sound": False, **absent},
-                 ITD_BUFFERS + ILD_BUFFERS + LEVEL_BUFFERS, missing_ok=True)
+                 ITD_BUFFERS + ILD_BUFFERS + LEVEL_BUFFERS + WALL_BUFFERS, missing_ok=True)
     assert old.model.binauralizer.itd_scale is None
     lo, hi = old.bounds
     with warnings.catch_warnings():
@@ -427,3 +428,22 @@ def test_the_direct_level_replaces_b_s_share_of_the_first_window(renderer, tmp_p
                 total[label, d] = 10.0 * math.log10(float(np.sum(h**2)))
     assert total["law", 2.5] == pytest.approx(total["plain", 2.5], abs=0.5)
     assert total["law", 0.4] > total["plain", 0.4] + 0.5
+
+
+def test_the_walls_count_widens_for_a_sparse_wall_so_no_path_slips_through_a_gap():
+    """A wall of points 0.4 m apart: a 0.2 m path test lets a path between its points count none, the
+    walls' radius (three spacings) counts the wall on every path across it; a dense wall keeps 0.2 m."""
+    from avgs.acoustics.line_of_sight import WALL_SPACINGS, points_on_path, wall_radius
+
+    def wall(step):
+        ys, zs = np.meshgrid(np.arange(-3.0, 3.0, step), np.arange(0.0, 2.5, step))
+        return torch.from_numpy(np.stack([np.zeros(ys.size), ys.ravel(), zs.ravel()], 1))
+
+    sparse, dense = wall(0.4), wall(0.05)
+    assert wall_radius(sparse, 0.2) == pytest.approx(WALL_SPACINGS * 0.4)
+    assert wall_radius(dense, 0.2) == pytest.approx(0.2)
+    ys = torch.linspace(-1.0, 1.0, 21)
+    a = torch.stack([torch.full_like(ys, -2.0), ys, torch.full_like(ys, 1.4)], 1)  # 21 paths across, between the rows
+    b = a + torch.tensor([4.0, 0.0, 0.0])
+    assert int((points_on_path(sparse, a, b, 0.2, 0.3) == 0).sum()) > 5  # gaps: these cross and count no wall
+    assert bool((points_on_path(sparse, a, b, wall_radius(sparse, 0.2), 0.3) > 0).all())

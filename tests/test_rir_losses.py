@@ -113,12 +113,37 @@ def test_knee_term_is_the_direct_plus_diffuse_law():
 
 def test_checkpoints_from_before_the_distance_term_build_without_it():
     old = TrainConfig().to_dict()
-    del old["rir"]["distance_slope"], old["rir"]["distance_knee"]
+    del old["rir"]["distance_slope"], old["rir"]["distance_knee"], old["rir"]["wall_loss"]
     cfg = TrainConfig.from_dict(old)
-    assert cfg.rir.distance_slope is False and cfg.rir.distance_knee is False
+    assert cfg.rir.distance_slope is False and cfg.rir.distance_knee is False and cfg.rir.wall_loss is False
     assert TrainConfig().rir.distance_knee is True
     net = RIRBinauralizer(cfg.rir, None, STFT.n_freq, 8, HOP_S)
     assert net.distance_slope is None and net.log_critical is None
     new = RIRBinauralizer(TrainConfig().rir, None, STFT.n_freq, 8, HOP_S)
     with pytest.raises(RuntimeError, match="log_critical"):
         net.load_state_dict(new.state_dict())  # strict: a mismatch is an error, not a silent drop
+
+
+def test_the_wall_term_adds_its_loss_per_wall_up_to_the_cap():
+    """Each wall on the path adds ``wall_loss`` per frame to both ears and every bin; no wall (or no
+    count) leaves the output as it is; more than WALL_MAX walls count as WALL_MAX."""
+    from avgs.acoustics.rir_binauralizer import WALL_MAX
+
+    net = RIRBinauralizer(RIRConfig(width=16), None, STFT.n_freq, 8, HOP_S)
+    loss = -torch.linspace(0.1, 0.8, 8)
+    with torch.no_grad():
+        net.wall_loss.copy_(loss)
+    listener, zeros = torch.zeros(4, 3), torch.zeros(4)
+    source = torch.tensor([[1.0, 0.0, 0.0]]).expand(4, 3)
+    walls = torch.tensor([0.0, 1.0, 2.5, 10.0])
+    with torch.no_grad():
+        plain = net(listener, source, zeros, zeros)
+        with_walls = net(listener, source, zeros, zeros, walls=walls)
+        some = net(listener, source, zeros, zeros, frames=torch.tensor([2, 5]), walls=walls)
+    added = with_walls - plain  # [4, 2, F, 8]
+    want = walls.clamp(max=WALL_MAX)[:, None] * loss  # [4, 8]
+    assert torch.allclose(added, want[:, None, None, :].expand_as(added), atol=1e-6)
+    assert torch.equal(added[0], torch.zeros_like(added[0]))
+    assert torch.allclose(some, with_walls[..., [2, 5]], atol=1e-6)  # a subset of frames: the same numbers
+    assert RIRBinauralizer(RIRConfig(width=16, wall_loss=False), None, STFT.n_freq, 8, HOP_S).wall_loss is None
+

@@ -86,8 +86,14 @@ MLP_LAYERS = 4
 ITD_BUFFERS = ("itd_scale", "itd_law")
 "The direct sound's ITD, fitted at training (direct_sound, direct_itd): a checkpoint without them has none."
 
+WALL_MAX = 3.0
+"The most walls' worth of points along a path that the wall term counts (:meth:`RIRBinauralizer.forward`'s ``walls``)."
+
 LEVEL_BUFFERS = ("level_law",)
 "The direct sound's level, fitted at training (direct_sound, direct_level): a checkpoint without it has none."
+
+WALL_BUFFERS = ("wall_loss", "wall_radius", "wall_margin", "wall_unit")
+"B's wall term, fitted at training (direct_sound, wall_loss): a checkpoint without them has none."
 
 ILD_BUFFERS = ("ild_law", "sight_radius", "sight_margin", "sight_blocked", "local_at", "local_residual", "local_scale")
 "The direct sound's ILD, fitted at training (direct_ild, ild_local): a checkpoint without them has none."
@@ -162,6 +168,16 @@ class RIRBinauralizer(nn.Module):
             self.register_buffer("level_law", torch.zeros(3))
         else:
             self.level_law = None
+        if cfg.direct_sound and cfg.wall_loss:  # log magnitude per frame lost per wall on the path
+            self.wall_loss = nn.Parameter(torch.zeros(n_frames))  # [N]
+            # the walls' count (avgs.train): points within `wall_radius` of the path, not within `wall_margin` of its
+            # ends (model units), over `wall_unit`,
+            # the count from which a training pair was behind a wall (never: NEVER_BLOCKED)
+            self.register_buffer("wall_radius", torch.tensor(0.0))
+            self.register_buffer("wall_margin", torch.tensor(0.0))
+            self.register_buffer("wall_unit", torch.tensor(NEVER_BLOCKED))
+        else:
+            self.wall_loss = None
         if cfg.direct_sound and cfg.direct_ild and cfg.ild_local and cfg.ild_table > 0:
             # the law's local correction (avgs.acoustics.interaural.local_correction), fitted by avgs.train:
             # where the training responses were [M, 6] (local_features over local_scale), their residual [M] dB
@@ -178,12 +194,15 @@ class RIRBinauralizer(nn.Module):
     def forward(
         self, listener: torch.Tensor, source: torch.Tensor, theta: torch.Tensor, yaw: torch.Tensor,
         context: torch.Tensor | None = None, time_features: torch.Tensor | None = None,
-        frames: torch.Tensor | None = None, bins: torch.Tensor | None = None,
+        frames: torch.Tensor | None = None, bins: torch.Tensor | None = None, walls: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """listener, source [B, 3] normalised; theta, yaw [B] radians; context [B, C] or None;
         ``time_features``: :meth:`time_features`, cached at inference. Returns log magnitudes [B, 2, F, N].
         ``frames`` [n] / ``bins`` [f] (int64 indices; None: all): evaluate only those frames and
-        bins, the same numbers as those entries of the whole output: [B, 2, f, n]."""
+        bins, the same numbers as those entries of the whole output: [B, 2, f, n].
+        ``walls`` [B]: the walls on each straight path, in units of the blocked count (the scene's points
+        along it over ``sight_blocked``: :meth:`avgs.acoustics.rir_model.RIRModel.walls`); with
+        ``RIRConfig.wall_loss`` each adds ``wall_loss`` per frame (None: no wall)."""
         c = self.cfg
         B, W, F = listener.shape[0], self.width, self.n_freq
         e = orientation_feature(theta, yaw, c.direction_harmonics)  # [B, D]
@@ -202,10 +221,12 @@ class RIRBinauralizer(nn.Module):
         h = h + q  # [B, W] residual
         t = self.time_features() if time_features is None else time_features  # [N, W]
         mean, seconds, slope, knee = self.mean, self.frame_seconds, self.distance_slope, self.log_critical  # [2, F, N], [N], [N], [N]
+        wall = None if walls is None else self.wall_loss  # [N]
         if frames is not None:  # a subset of the frames: [n] of each
             t, mean, seconds = t[frames], mean[..., frames], seconds[frames]
             slope = None if slope is None else slope[frames]
             knee = None if knee is None else knee[frames]
+            wall = None if wall is None else wall[frames]
         head_w, head_b = self.head.weight, self.head.bias  # [2 F, W], [2 F]
         if bins is not None:  # a subset of the bins: the head's rows of both ears
             rows = torch.cat([bins, bins + F])
@@ -231,4 +252,6 @@ class RIRBinauralizer(nn.Module):
             sp = torch.nn.functional.softplus
             law = 0.5 * (sp(2.0 * (knee[None] - log_d[:, None])) - sp(2.0 * knee))  # [B, N]
             out = out + law[:, None, None, :]
+        if wall is not None:
+            out = out + (walls.to(out.dtype).clamp(0.0, WALL_MAX)[:, None] * wall)[:, None, None, :]
         return out + mean

@@ -130,7 +130,19 @@ class RIRModel(AVGSModel):
         theta = signed_direction(listener, yaw, source)  # [B]
         context, lis_idx, src_idx = self.contexts(listener, source, cache, cached_source)
         t = None if cache is None else cache.frequency
-        return self.binauralizer(listener, source, theta, yaw, context, t), lis_idx, src_idx
+        return self.binauralizer(listener, source, theta, yaw, context, t, walls=self.walls(listener, source)), lis_idx, src_idx
+
+    def walls(self, listener: torch.Tensor, source: torch.Tensor) -> torch.Tensor | None:
+        """The walls on each straight path ``[B]``, for B's wall term (``RIRConfig.wall_loss``), or None:
+        the count of G_a's points along it (:func:`~avgs.acoustics.line_of_sight.points_on_path`, within
+        ``wall_radius``) over the count from which a training pair was behind a wall (``wall_unit``); 0 where
+        that was not fitted. listener, source [B, 3] normalised."""
+        b = self.binauralizer
+        if getattr(b, "wall_loss", None) is None:
+            return None
+        along = points_on_path(self.points.X.detach(), listener.detach(), source.detach(),
+                               float(b.wall_radius), float(b.wall_margin))  # [B]
+        return along.to(listener.dtype) / float(b.wall_unit)
 
     def magnitudes(self, log_mag: torch.Tensor) -> torch.Tensor:
         """STFT magnitudes of predicted log magnitudes: ``max(e^y - e^(floor + SILENCE_MARGIN), 0)``.

@@ -174,7 +174,8 @@ def measure_source_aware(renderer, repeats: int = 50, progress=None) -> dict:
             from avgs.data.frame import signed_direction
 
             theta = signed_direction(lis, yaw_t, src[None])
-            log_mag = run("network", lambda: model.binauralizer(lis, src[None], theta, yaw_t, ctx[0], cache.frequency))
+            log_mag = run("network", lambda: model.binauralizer(lis, src[None], theta, yaw_t, ctx[0], cache.frequency,
+                                                                walls=model.walls(lis, src[None])))
             h = run("waveform", lambda: response_waveform(model.magnitudes(log_mag.float()).cpu(), rc.length, renderer.stft,
                                                           rc.phase, rc.phase_iterations)[0])
             if model.direct_sound(lis, yaw_t, src[None]) is not None:  # placed by geometry (RIRConfig.direct_sound)

@@ -69,6 +69,10 @@ def summary(path) -> dict:
                                 else int(ckpt["binauralizer"]["local_residual"].numel())),
         "blocked_from_points": (None if ckpt["binauralizer"].get("sight_blocked") is None
                                 else float(ckpt["binauralizer"]["sight_blocked"])),
+        "wall_loss_db": (None if ckpt["binauralizer"].get("wall_loss") is None
+                         else [20.0 / math.log(10.0) * float(v) for v in ckpt["binauralizer"]["wall_loss"]]),
+        "wall_unit_points": (None if ckpt["binauralizer"].get("wall_unit") is None
+                             else float(ckpt["binauralizer"]["wall_unit"])),
         "metrics": {k: v for k, v in dict(ckpt.get("metrics") or {}).items()},
     }
 
@@ -153,6 +157,13 @@ def run(args: argparse.Namespace) -> int:
         c0, c1, c2 = info["level_law_db"]
         print(f"  direct sound's level: {c0:.1f} {'-' if c1 < 0 else '+'} {abs(c1):.1f} cos theta {'-' if c2 < 0 else '+'} "
               f"{abs(c2):.1f} cos 2theta - 20 log10 d dB (d in the model's units; fitted to the training responses in sight)")
+    if info["wall_loss_db"] is not None:
+        unit, loss = info["wall_unit_points"], info["wall_loss_db"]
+        if unit is None or unit >= 1e11:
+            print("  walls: none told apart in training (no wall term)")
+        else:
+            print(f"  each wall on the straight path ({unit:.0f} audio points along it): {loss[0]:+.1f} dB in the first frame, "
+                  f"{min(loss):+.1f} dB at its strongest, {loss[-1]:+.1f} dB in the last")
     if info["rt60_s"]:
         print("  learned RT60 " + ", ".join(f"{fc} Hz {v:.2f} s" for fc, v in info["rt60_s"].items()))
     if info["metrics"]:

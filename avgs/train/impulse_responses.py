@@ -330,6 +330,7 @@ class ImpulseResponseTraining:
             distance = np.linalg.norm(np.asarray(train.source, dtype=np.float64) - np.asarray(train.receiver, dtype=np.float64),
                                       axis=-1)  # [M] normalised units, as the speed of sound
             in_sight = spatial.in_sight(onsets, distance, cfg.rir.sound_speed)  # the first arrival is the direct sound
+            self._in_sight = in_sight  # the straight path's tests are fitted on them with the model's points (trainer)
             if cfg.rir.direct_itd:  # the head's own ITD against the direction, from those responses
                 law = fit_itd_law(theta.numpy()[in_sight], -np.asarray(itds)[in_sight])
                 self.itd_law = None if law is None else [float(c) for c in law]
@@ -342,7 +343,6 @@ class ImpulseResponseTraining:
                 cfg.rir.direct_level = law is not None  # too few responses in sight: B's level, said in the log
                 log.write({"stage": "level", "event": "fit", "coefficients_db": self.level_law, "responses": int(in_sight.sum())})
             if cfg.rir.direct_ild:  # the head shadow, from the same responses
-                self._in_sight = in_sight  # the straight path's test is fitted on them with the model's points (trainer)
                 law = fit_ild_law(theta.numpy()[in_sight], np.asarray(ilds)[in_sight])
                 self.ild_law = None if law is None else [float(c) for c in law]
                 cfg.rir.direct_ild = law is not None  # too few responses in sight of the source: B's ILD, said in the log
@@ -376,6 +376,25 @@ class ImpulseResponseTraining:
                              "pairs_behind": int((~sight).sum()), "agree_in_sight": int((~blocked & sight).sum()),
                              "agree_behind": int((blocked & ~sight).sum())})
 
+    def _fit_walls(self, model: RIRModel) -> None:
+        """The walls' count of B's wall term (``RIRConfig.wall_loss``): the straight path's test
+        (:meth:`_fit_sight`) within :func:`~avgs.acoustics.line_of_sight.wall_radius`, wide enough for sparse
+        points, its unit the count from which a training pair was behind a wall."""
+        from avgs.acoustics.line_of_sight import MARGIN_M, RADIUS_M, fit_blocked_count, points_on_path, wall_radius
+        from avgs.acoustics.rir_binauralizer import NEVER_BLOCKED
+
+        b, train, scale = model.binauralizer, self.train_set, float(self.scene.frame.scale)
+        radius, margin = wall_radius(model.points.X, RADIUS_M * scale), MARGIN_M * scale  # the model's units
+        counts = points_on_path(model.points.X.detach().double().cpu(), torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
+                                torch.as_tensor(np.asarray(train.source), dtype=torch.float64), radius, margin).numpy()
+        unit = fit_blocked_count(counts, self._in_sight)
+        with torch.no_grad():
+            b.wall_radius.fill_(radius)
+            b.wall_margin.fill_(margin)
+            b.wall_unit.fill_(NEVER_BLOCKED if unit is None else unit)
+        if self._log is not None:
+            self._log.write({"stage": "walls", "event": "fit", "radius_m": radius / scale, "unit_points": unit})
+
     def trainer(self, model: RIRModel, cfg: TrainConfig, resumed: bool) -> RIRTrainer:
         """The trainer on the training responses; a fresh model's floor, mean response and mean
         log distance set from them (a resumed one keeps its own)."""
@@ -398,6 +417,8 @@ class ImpulseResponseTraining:
                     for name, value in zip(("local_at", "local_residual", "local_scale"), self.ild_table):
                         getattr(model.binauralizer, name).copy_(value)
             self._fit_sight(model)
+        if not resumed and self._in_sight is not None and getattr(model.binauralizer, "wall_loss", None) is not None:
+            self._fit_walls(model)
         if resumed:
             log_floor = float(model.binauralizer.log_floor)
         else:
