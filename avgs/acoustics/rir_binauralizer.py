@@ -170,9 +170,9 @@ class RIRBinauralizer(nn.Module):
             self.level_law = None
         if cfg.direct_sound and cfg.wall_loss:  # log magnitude per frame lost per wall on the path
             self.wall_loss = nn.Parameter(torch.zeros(n_frames))  # [N]
-            # the walls' count (avgs.train): points within `wall_radius` of the path, not within `wall_margin` of its
-            # ends (model units), over `wall_unit`,
-            # the count from which a training pair was behind a wall (never: NEVER_BLOCKED)
+            # the walls' count (fitted by avgs.train): the points within `wall_radius` of the path, not within
+            # `wall_margin` of its ends (model units), over `wall_unit`, the count from which a training pair
+            # was behind a wall (never: NEVER_BLOCKED)
             self.register_buffer("wall_radius", torch.tensor(0.0))
             self.register_buffer("wall_margin", torch.tensor(0.0))
             self.register_buffer("wall_unit", torch.tensor(NEVER_BLOCKED))
@@ -200,9 +200,9 @@ class RIRBinauralizer(nn.Module):
         ``time_features``: :meth:`time_features`, cached at inference. Returns log magnitudes [B, 2, F, N].
         ``frames`` [n] / ``bins`` [f] (int64 indices; None: all): evaluate only those frames and
         bins, the same numbers as those entries of the whole output: [B, 2, f, n].
-        ``walls`` [B]: the walls on each straight path, in units of the blocked count (the scene's points
-        along it over ``sight_blocked``: :meth:`avgs.acoustics.rir_model.RIRModel.walls`); with
-        ``RIRConfig.wall_loss`` each adds ``wall_loss`` per frame (None: no wall)."""
+        ``walls`` [B]: the walls on each straight path (the scene's points along it over ``wall_unit``:
+        :meth:`avgs.acoustics.rir_model.RIRModel.walls`); with ``RIRConfig.wall_loss`` each, up to
+        :data:`WALL_MAX`, adds ``wall_loss`` per frame (None: no wall term)."""
         c = self.cfg
         B, W, F = listener.shape[0], self.width, self.n_freq
         e = orientation_feature(theta, yaw, c.direction_harmonics)  # [B, D]

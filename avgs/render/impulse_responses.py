@@ -116,7 +116,8 @@ class ImpulseResponseTaskModel:
             context = torch.cat([c_s, listener_contexts(model, self.cache, listener)], dim=-1)  # [n, 2c] = C_S (+) C_L
         src = source[None].expand(n, -1)  # [n, 3]
         theta_r = signed_direction(listener, yaw_rad, src)  # [n], as RIRModel.log_magnitudes
-        log_mag = b(listener, src, theta_r, yaw_rad, context, self.cache.frequency, frames, bins)  # [n, 2, f, n_t]
+        log_mag = b(listener, src, theta_r, yaw_rad, context, self.cache.frequency, frames, bins,
+                    walls=model.walls(listener, src))  # [n, 2, f, n_t]
         gains = ear_transfer(model.magnitudes(log_mag @ interpolate.to(log_mag)).float().cpu(), self.stft)  # [n, 2, f]
         return gains.double().numpy() ** 2
 

@@ -357,13 +357,12 @@ class ImpulseResponseTraining:
     def _fit_sight(self, model: RIRModel) -> None:
         """The straight path's test (:mod:`avgs.acoustics.line_of_sight`): the count of G_a's points along
         a training pair's path from which it is behind a wall, fitted to the pairs' own first arrivals."""
-        from avgs.acoustics.line_of_sight import MARGIN_M, RADIUS_M, fit_blocked_count, points_on_path
+        from avgs.acoustics.line_of_sight import MARGIN_M, RADIUS_M, fit_blocked_count
         from avgs.acoustics.rir_binauralizer import NEVER_BLOCKED
 
-        b, train, scale = model.binauralizer, self.train_set, float(self.scene.frame.scale)
+        b, scale = model.binauralizer, float(self.scene.frame.scale)
         radius, margin = RADIUS_M * scale, MARGIN_M * scale  # the model's units
-        counts = points_on_path(model.points.X.detach().double().cpu(), torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
-                                torch.as_tensor(np.asarray(train.source), dtype=torch.float64), radius, margin).numpy()
+        counts = self._counts_on_paths(model, radius, margin)
         threshold = fit_blocked_count(counts, self._in_sight)
         with torch.no_grad():
             b.sight_radius.fill_(radius)
@@ -376,18 +375,24 @@ class ImpulseResponseTraining:
                              "pairs_behind": int((~sight).sum()), "agree_in_sight": int((~blocked & sight).sum()),
                              "agree_behind": int((blocked & ~sight).sum())})
 
+    def _counts_on_paths(self, model: RIRModel, radius: float, margin: float) -> np.ndarray:
+        """How many of G_a's points lie along each training pair's straight path ``[M]`` (model units)."""
+        from avgs.acoustics.line_of_sight import points_on_path
+
+        train = self.train_set
+        return points_on_path(model.points.X.detach().double().cpu(), torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
+                              torch.as_tensor(np.asarray(train.source), dtype=torch.float64), radius, margin).numpy()
+
     def _fit_walls(self, model: RIRModel) -> None:
         """The walls' count of B's wall term (``RIRConfig.wall_loss``): the straight path's test
         (:meth:`_fit_sight`) within :func:`~avgs.acoustics.line_of_sight.wall_radius`, wide enough for sparse
         points, its unit the count from which a training pair was behind a wall."""
-        from avgs.acoustics.line_of_sight import MARGIN_M, RADIUS_M, fit_blocked_count, points_on_path, wall_radius
+        from avgs.acoustics.line_of_sight import MARGIN_M, RADIUS_M, fit_blocked_count, wall_radius
         from avgs.acoustics.rir_binauralizer import NEVER_BLOCKED
 
-        b, train, scale = model.binauralizer, self.train_set, float(self.scene.frame.scale)
+        b, scale = model.binauralizer, float(self.scene.frame.scale)
         radius, margin = wall_radius(model.points.X, RADIUS_M * scale), MARGIN_M * scale  # the model's units
-        counts = points_on_path(model.points.X.detach().double().cpu(), torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
-                                torch.as_tensor(np.asarray(train.source), dtype=torch.float64), radius, margin).numpy()
-        unit = fit_blocked_count(counts, self._in_sight)
+        unit = fit_blocked_count(self._counts_on_paths(model, radius, margin), self._in_sight)
         with torch.no_grad():
             b.wall_radius.fill_(radius)
             b.wall_margin.fill_(margin)
