@@ -42,6 +42,8 @@ def cell_pixels(img: np.ndarray, projector, pmap, floor_z: float, step: int = 3,
 def assert_floor_coloured(before: np.ndarray, after: np.ndarray, projector, pmap, floor_z: float,
                           overlays=()) -> None:
     """The floor's cells (those no overlay covers) changed from the dark background to colours ordered like the level."""
+    from scipy.stats import spearmanr
+
     samples = cell_pixels(after, projector, pmap, floor_z, overlays=overlays)
     old = dict(cell_pixels(before, projector, pmap, floor_z, overlays=overlays))
     assert len(samples) > 30
@@ -50,7 +52,9 @@ def assert_floor_coloured(before: np.ndarray, after: np.ndarray, projector, pmap
     values = pmap.level.ravel()
     flats = np.array([f for f, _ in samples])
     bright = np.array([rgb.sum() for _, rgb in samples])
-    assert np.corrcoef(values[flats], bright)[0, 1] > 0.5  # inferno: louder is brighter
+    # inferno: louder is brighter, in order (its brightness is flat near black, where a room behind a wall sits:
+    # a rank correlation, not a linear one; the demo's map: 0.65 rank, 0.47 linear)
+    assert spearmanr(values[flats], bright)[0] > 0.5
 
 
 def test_map_drawn_off_screen_with_its_colour_bar(renderer, tmp_path):
