@@ -35,7 +35,9 @@ mkdir -p "$WORK"
 #    direct sound's level from 1 / d^2 (RIRConfig.direct_level). The committed demo was made so on
 #    2026-11-26 (stage 1 12 min, stage 2 1 min, one thread); the ITD law, the ILD's local correction and the
 #    level law were added to those weights on 2026-11-27 (scripts/rir_refit.py: the same fits as
-#    training's start; the weights do not depend on them).
+#    training's start; the weights do not depend on them). B's wall term (RIRConfig.wall_loss) is
+#    learned, so for it stage 2 was run again (2026-11-27, 2 min) on that demo's own G: a stage-1 file
+#    written from the checkpoint's Gaussians (avgs.train.stage1.save_stage1) and `--stage1 FILE` here.
 OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --init gs --out "$WORK/scene.ckpt" --audio-points 8000 \
   --iterations 500 --batch-size 8 --lr 1e-3 --rir-width 256 --eval-every 250
 
