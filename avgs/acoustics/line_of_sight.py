@@ -12,7 +12,8 @@ positions alone cannot.
 
 Used by the impulse-response task's direct sound: the head shadow of the straight direction
 (:func:`avgs.acoustics.interaural.ild_law`) only where that path is free; behind a wall the
-first sound comes around it, from elsewhere, and B's learned ILD stays.
+first sound comes around it, from elsewhere, and B's learned ILD stays. And by B's wall term
+(``RIRConfig.wall_loss``): the count along the path, within :func:`wall_radius`, in walls.
 """
 
 from __future__ import annotations
