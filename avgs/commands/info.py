@@ -162,8 +162,9 @@ def run(args: argparse.Namespace) -> int:
         if unit is None or unit >= 1e11:
             print("  walls: none told apart in training (no wall term)")
         else:
-            print(f"  each wall on the straight path ({unit:.0f} audio points along it): {loss[0]:+.1f} dB in the first frame, "
-                  f"{min(loss):+.1f} dB at its strongest, {loss[-1]:+.1f} dB in the last")
+            db = [round(v, 1) + 0.0 for v in (loss[0], min(loss), loss[-1])]  # no "-0.0"
+            print(f"  each wall on the straight path ({unit:.0f} audio points along it): {db[0]:+.1f} dB in the first frame, "
+                  f"{db[1]:+.1f} dB at its strongest, {db[2]:+.1f} dB in the last")
     if info["rt60_s"]:
         print("  learned RT60 " + ", ".join(f"{fc} Hz {v:.2f} s" for fc, v in info["rt60_s"].items()))
     if info["metrics"]:
