@@ -11,7 +11,7 @@ With ``--pair``, also the fixed check of scripts/rir_level_distance.py: one list
 room and one behind a partition at 2.5 m, the simulator's level against each checkpoint's (per seed).
 
     .venv/bin/python scripts/rir_wall_table.py data/rir/two_rooms avgs=runs/wall/avgs_s0.ckpt,... \
-        nocontext=runs/wall/nocontext_s0.ckpt,... [--out docs/rir_wall.md]
+        nocontext=runs/wall/nocontext_s0.ckpt,... [--pair] [--out docs/rir_wall.md]
 """
 
 from __future__ import annotations
