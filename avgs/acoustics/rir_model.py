@@ -37,7 +37,7 @@ from avgs.acoustics.interaural import (direct_level_db, ear_delays, ild_law, itd
 from avgs.acoustics.line_of_sight import points_on_path
 from avgs.acoustics.model import AVGSModel, ModelCache
 from avgs.acoustics.points import AudioPoints
-from avgs.acoustics.rir_binauralizer import RIRBinauralizer
+from avgs.acoustics.rir_binauralizer import NEVER_BLOCKED, RIRBinauralizer
 from avgs.config import STFT, AcousticConfig, RIRConfig, STFTConfig, TrainConfig
 from avgs.dsp.phase_retrieval import FrameGrid, frame_grid, griffin_lim
 from avgs.data.frame import signed_direction
@@ -135,10 +135,10 @@ class RIRModel(AVGSModel):
     def walls(self, listener: torch.Tensor, source: torch.Tensor) -> torch.Tensor | None:
         """The walls on each straight path ``[B]``, for B's wall term (``RIRConfig.wall_loss``), or None:
         the count of G_a's points along it (:func:`~avgs.acoustics.line_of_sight.points_on_path`, within
-        ``wall_radius``) over the count from which a training pair was behind a wall (``wall_unit``); 0 where
-        that was not fitted. listener, source [B, 3] normalised."""
+        ``wall_radius``) over the count from which a training pair was behind a wall (``wall_unit``); None
+        also where training told no wall apart (one room): no count is made. listener, source [B, 3] normalised."""
         b = self.binauralizer
-        if getattr(b, "wall_loss", None) is None:
+        if getattr(b, "wall_loss", None) is None or float(b.wall_unit) >= NEVER_BLOCKED:
             return None
         along = points_on_path(self.points.X.detach(), listener.detach(), source.detach(),
                                float(b.wall_radius), float(b.wall_margin))  # [B]
