@@ -195,6 +195,10 @@ def test_the_fitted_head_shadow_makes_the_near_ear_louder_and_info_says_so(rende
     assert "direct sound's ILD: " in out
     assert "direct sound's level: " in out and "20 log10 d dB" in out
     assert "walls: none told apart in training" in out  # one room: B's wall term has nothing to count
+    model = renderer.model
+    assert model.binauralizer.wall_loss is not None  # the term is there, its unit never fitted ...
+    ends = model.points.X[:2].detach()
+    assert model.walls(ends, ends.flip(0)) is None  # ... so no pose counts points along its path
     law = [1e6 * float(c) for c in renderer.model.binauralizer.itd_law]
     assert f"direct sound's ITD: {law[0]:.0f} sin theta {'-' if law[1] < 0 else '+'} {abs(law[1]):.0f} sin 2theta" in out
     assert "spherical head" not in out  # the law replaces the sphere

@@ -80,6 +80,12 @@ from avgs.config import RIRConfig
 NEVER_BLOCKED = 1e12
 "The ``sight_blocked`` count of a model without the straight path's test: no path is blocked."
 
+
+def never_blocked(count) -> bool:
+    """Whether a fitted count (``sight_blocked``, ``wall_unit``; a tensor, a float or None) is
+    :data:`NEVER_BLOCKED`: its float32 buffer holds 999 999 995 904, under 1e12 itself."""
+    return count is None or float(count) >= 0.1 * NEVER_BLOCKED
+
 MLP_LAYERS = 4
 "Linear + ReLU layers of each of the two MLPs (as B's)."
 

@@ -37,7 +37,7 @@ from avgs.acoustics.interaural import (direct_level_db, ear_delays, ild_law, itd
 from avgs.acoustics.line_of_sight import points_on_path
 from avgs.acoustics.model import AVGSModel, ModelCache
 from avgs.acoustics.points import AudioPoints
-from avgs.acoustics.rir_binauralizer import NEVER_BLOCKED, RIRBinauralizer
+from avgs.acoustics.rir_binauralizer import RIRBinauralizer, never_blocked
 from avgs.config import STFT, AcousticConfig, RIRConfig, STFTConfig, TrainConfig
 from avgs.dsp.phase_retrieval import FrameGrid, frame_grid, griffin_lim
 from avgs.data.frame import signed_direction
@@ -138,7 +138,7 @@ class RIRModel(AVGSModel):
         ``wall_radius``) over the count from which a training pair was behind a wall (``wall_unit``); None
         also where training told no wall apart (one room): no count is made. listener, source [B, 3] normalised."""
         b = self.binauralizer
-        if getattr(b, "wall_loss", None) is None or float(b.wall_unit) >= NEVER_BLOCKED:
+        if getattr(b, "wall_loss", None) is None or never_blocked(b.wall_unit):
             return None
         along = points_on_path(self.points.X.detach(), listener.detach(), source.detach(),
                                float(b.wall_radius), float(b.wall_margin))  # [B]

@@ -127,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(info, indent=2))
         return 0
+    from avgs.acoustics.rir_binauralizer import never_blocked
+
     src = ", ".join(f"{v:.3f}" for v in info["source_position"])
     lo, hi = (", ".join(f"{v:.2f}" for v in row) for row in info["bounds"])
     task = task_named(info["task"])
@@ -148,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     if info["ild_law_db"] is not None:
         law = harmonics(info["ild_law_db"], ".1f")
         blocked = info["blocked_from_points"]
-        where = ("everywhere (no wall told apart in training)" if blocked is None or blocked >= 1e11 else
+        where = ("everywhere (no wall told apart in training)" if never_blocked(blocked) else
                  f"where the straight path is free (behind a wall from {blocked:.0f} audio points along it: B's ILD)")
         local = info["ild_local_responses"]
         near = f", corrected near the {local} training responses in sight by their early ILDs" if local else ""
@@ -159,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
               f"{abs(c2):.1f} cos 2theta - 20 log10 d dB (d in the model's units; fitted to the training responses in sight)")
     if info["wall_loss_db"] is not None:
         unit, loss = info["wall_unit_points"], info["wall_loss_db"]
-        if unit is None or unit >= 1e11:
+        if never_blocked(unit):
             print("  walls: none told apart in training (no wall term)")
         else:
             db = [round(v, 1) + 0.0 for v in (loss[0], min(loss), loss[-1])]  # no "-0.0"
