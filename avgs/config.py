@@ -129,7 +129,7 @@ class AcousticConfig:
     lambda_a: float = 1e-4
     "Weight of the volume regulariser L_v (the paper does not state it)."
     iterations: int = 40000
-    "Stage-2 iterations (paper: 40k)."
+    "Stage-2 iterations (paper: 40k); the impulse-response task runs fewer on a scene of few responses (--rir-passes)."
     batch_size: int = 4
     "Training clips per iteration."
     lr: float = 5e-4
@@ -235,6 +235,10 @@ class RIRConfig:
     "Fast Griffin-Lim iterations with phase griffin-lim."
     eval_responses: int = 64
     "At most this many validation responses get T60 / C50 / EDT at each evaluation (log-magnitude error: all)."
+    passes: float = 27.0
+    "Stage 2's length in passes over the training responses (iterations = passes x responses / batch size), at least least_iterations and at most acoustic.iterations (the paper's 40k, which SoundSpaces' scenes of thousands of responses fill): a scene of a few hundred responses overfits long before 40k (docs/results.md, 'How long to train the impulse-response task'). 0: acoustic.iterations; giving --iterations sets it to 0."
+    least_iterations: int = 3000
+    "With passes: stage 2 runs at least this many iterations (four scenes of 228-448 responses: a whole schedule of 3000 is better than one of 6000 on 16 of 24 T60 / C50 / EDT scores, and than 12000 and 40000 on the validation error)."
 
 
 @dataclass
@@ -325,6 +329,8 @@ class TrainConfig:
              (self.rir.position_frequencies, self.rir.time_frequencies, self.rir.frames, self.rir.length,
               self.rir.arrival_frequencies, self.rir.sound_speed, self.rir.phase_iterations, self.rir.eval_responses), ">= 0"),
             (self.rir.floor_db < 0, "rir floor dB", self.rir.floor_db, "< 0"),
+            (math.isfinite(self.rir.passes) and self.rir.passes >= 0, "rir passes", self.rir.passes, "finite and >= 0"),
+            (self.rir.least_iterations >= 1, "rir least iterations", self.rir.least_iterations, ">= 1"),
             (self.rir.smooth_bins >= 1, "rir smooth bins", self.rir.smooth_bins, ">= 1"),
             (math.isfinite(self.rir.energy_weight) and self.rir.energy_weight >= 0, "rir energy weight", self.rir.energy_weight, "finite and >= 0"),
         ]
@@ -395,7 +401,8 @@ ADDED_LATER = {
     "gaussians": {"cpu_max_pixels": 0},
     "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0, "direct_sound": False,
             "direct_ild": False, "direct_itd": False, "ild_local": False, "ild_table": 0,
-            "direct_level": False, "wall_loss": False},
+            "direct_level": False, "wall_loss": False, "passes": 0.0,
+            "least_iterations": 3000},
 }
 "Fields absent from older stored configurations, with the value that the older code used."
 

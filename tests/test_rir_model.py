@@ -8,6 +8,7 @@ command (the data side of the task) the tests that need it skip, saying so.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import warnings
@@ -202,6 +203,53 @@ def test_a_killed_run_resumes_bit_exactly(rir_scene, tmp_path, monkeypatch):
     a, b = load_checkpoint(tmp_path / "full.ckpt"), load_checkpoint(tmp_path / "part.ckpt")
     assert torch.equal(a["audio_points"]["X"], b["audio_points"]["X"])
     assert all(torch.equal(a["binauralizer"][k], b["binauralizer"][k]) for k in a["binauralizer"])
+
+
+def test_the_schedule_is_sized_to_the_training_responses_and_a_resume_keeps_it(rir_scene, tmp_path, monkeypatch):
+    """``rir.passes`` passes over the training responses, not the preset's 300 iterations; a killed
+    run resumes to the same end, and ``--iterations N`` on the command line means N."""
+    import avgs.train.impulse_responses as rir_train
+    from avgs.commands.train import add_arguments, config_from_args
+    from avgs.data.rir import RIRScene
+    from avgs.train.pipeline import train_scene
+
+    responses = len(RIRScene(rir_scene).index("train"))
+    cfg = rir_train.rir_quick_config()
+    cfg.checkpoint_every, cfg.eval_every, cfg.rir.eval_responses = 10, 1000, 0
+    cfg.rir.passes = 30 * cfg.acoustic.batch_size / responses + 0.01  # 31 iterations, against the preset's 300
+    cfg.rir.least_iterations = 20
+    expected = math.ceil(cfg.rir.passes * responses / cfg.acoustic.batch_size)
+    assert expected == 31 and rir_train.schedule_iterations(cfg, responses) == expected
+    assert rir_train.schedule_iterations(cfg, 1) == 20  # at least least_iterations
+    step = rir_train.RIRTrainer.step
+
+    def dying(self):
+        if self.iteration == 15:
+            raise KeyboardInterrupt("killed")
+        return step(self)
+
+    monkeypatch.setattr(rir_train.RIRTrainer, "step", dying)
+    with pytest.raises(KeyboardInterrupt):
+        train_scene(rir_scene, tmp_path / "sized.ckpt", cfg, task="rir", progress=False)
+    monkeypatch.setattr(rir_train.RIRTrainer, "step", step)
+    resumed = rir_train.rir_quick_config()  # 300 iterations asked; the stored schedule's size wins
+    resumed.rir.passes = 1.0
+    final = train_scene(rir_scene, tmp_path / "sized.ckpt", resumed, task="rir", progress=False, resume=True)
+    ckpt = load_checkpoint(tmp_path / "sized.ckpt")
+    assert final["iteration"] == ckpt["train_state"]["iteration"] == ckpt["config"]["acoustic"]["iterations"] == expected
+    schedule = [r for r in ckpt["history"] if r.get("event") == "schedule"]
+    assert schedule and schedule[0]["iterations"] == expected and schedule[0]["responses"] == responses
+    assert rir_train.schedule_iterations(cfg, 10**9) == cfg.acoustic.iterations  # at most the iterations asked
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    parse = lambda *flags: config_from_args(parser.parse_args([str(rir_scene), "--task", "rir", "--out", "x.ckpt", *flags]))  # noqa: E731
+    assert parse().rir.passes == RIRConfig().passes > 0
+    assert parse("--iterations", "6000").rir.passes == 0
+    both = parse("--iterations", "6000", "--rir-passes", "5")
+    assert (both.acoustic.iterations, both.rir.passes) == (6000, 5)
+    with pytest.raises(ValueError, match="rir passes"):
+        parse("--rir-passes", "nan")
 
 
 # -- inference --------------------------------------------------------------------------

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 
-from avgs.commands.flags import add_config_flags, apply_config_flags
+from avgs.commands.flags import DEST, add_config_flags, apply_config_flags
 from avgs.config import TrainConfig
 from avgs.tasks import DEFAULT, TASKS, task_named
 
@@ -51,7 +51,11 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
     task = task_named(getattr(args, "task", DEFAULT), "--task")
     base = task.part("training").quick_config() if args.quick else TrainConfig()
-    cfg = apply_config_flags(args, base).validate()
+    cfg = apply_config_flags(args, base)
+    given = vars(args)
+    if given.get(f"{DEST}acoustic.iterations") is not None and given.get(f"{DEST}rir.passes") is None:
+        cfg.rir.passes = 0.0  # --iterations N means N, not a cap on the schedule sized to the data
+    cfg.validate()
     parse_alpha_spec(cfg.acoustic.alpha_init)
     if cfg.device == "cuda":
         import torch

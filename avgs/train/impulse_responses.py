@@ -62,7 +62,18 @@ def rir_quick_config(cfg: TrainConfig | None = None) -> TrainConfig:
     cfg.gaussians.init_points = 1500
     cfg.rir.width = 128
     cfg.rir.eval_responses = 16
+    cfg.rir.passes = 0.0  # the preset's iterations, whatever the scene's size
     return cfg
+
+
+def schedule_iterations(cfg: TrainConfig, responses: int) -> int:
+    """Stage 2's iterations for ``responses`` training responses: ``cfg.rir.passes`` passes over them
+    at ``cfg.acoustic.batch_size`` each, at least ``cfg.rir.least_iterations``, at most
+    ``cfg.acoustic.iterations`` (all of those when passes is 0)."""
+    if cfg.rir.passes <= 0:
+        return cfg.acoustic.iterations
+    sized = max(cfg.rir.least_iterations, math.ceil(cfg.rir.passes * responses / cfg.acoustic.batch_size))
+    return min(cfg.acoustic.iterations, sized)
 
 
 CHUNK = 32
@@ -302,11 +313,17 @@ class ImpulseResponseTraining:
         self._log: JsonLinesLog | None = None
 
     def configure(self, cfg: TrainConfig, log: JsonLinesLog) -> None:
-        """A fresh run: the responses' length and frames, and the speed of sound, into ``cfg.rir``."""
+        """A fresh run: the responses' length and frames, and the speed of sound, into ``cfg.rir``; stage 2's
+        iterations sized to the training responses (:func:`schedule_iterations`)."""
         cfg.rir.length = int(self.responses.length)
         cfg.rir.frames = dsp.n_frames(cfg.rir.length, cfg.stft)
         cfg.rir.sound_speed = speed_of_sound(self.responses) * self.scene.frame.scale  # normalised units per second
         log.write({"stage": "rir", "event": "task", "task": "rir", "responses": len(self.train_set), "length": cfg.rir.length})
+        limit = cfg.acoustic.iterations
+        cfg.acoustic.iterations = schedule_iterations(cfg, len(self.train_set))
+        if cfg.rir.passes > 0:
+            log.write({"stage": "rir", "event": "schedule", "iterations": cfg.acoustic.iterations, "passes": cfg.rir.passes,
+                       "responses": len(self.train_set), "batch_size": cfg.acoustic.batch_size, "at_most": limit})
         self.itd_scale, self.itd_law, self.ild_law, self._in_sight, self._log = None, None, None, None, log
         self.ild_table, self.level_law = None, None
         if cfg.rir.direct_sound:  # the head that the training responses' direct sounds carry

@@ -138,7 +138,10 @@ def _train_stage1_logged(scene_dir: Path, cfg: TrainConfig, progress: bool, sink
 
 def resume_from(out: Path, cfg: TrainConfig, log_path: Path, task: Task = BINAURAL, scene_dir: Path | None = None):
     """What ``--resume`` continues from the checkpoint ``out`` of ``task``: (the checkpoint, its
-    stored configuration with this run's iterations, intervals and device, its log continued,
+    stored configuration with this run's iterations (a run whose task sized its schedule to the data,
+    logged as a "schedule" event, :attr:`~avgs.config.RIRConfig.passes`, keeps that size unless ``cfg``
+    sets passes to 0),
+    intervals and device, its log continued,
     its audio points, its G or None). ValueError when ``out`` holds no training state of ``task``,
     or was trained on another scene than ``scene_dir`` (:mod:`avgs.data.identity`)."""
     resumed = load_checkpoint(out)
@@ -147,7 +150,9 @@ def resume_from(out: Path, cfg: TrainConfig, log_path: Path, task: Task = BINAUR
     if scene_dir is not None:
         check_scene_identity(resumed["scene"].get("identity"), scene_dir, out, "resume")
     stored = config_of(resumed)
-    stored.acoustic.iterations = cfg.acoustic.iterations
+    sized = any(r.get("event") == "schedule" for r in resumed.get("history") or [])  # its task sized its schedule
+    if not (sized and cfg.rir.passes > 0):
+        stored.acoustic.iterations = cfg.acoustic.iterations
     stored.checkpoint_every, stored.eval_every, stored.log_every = cfg.checkpoint_every, cfg.eval_every, cfg.log_every
     stored.device = cfg.device
     pts = resumed["audio_points"]
@@ -198,7 +203,13 @@ def train_scene(
     log = JsonLinesLog(log_path)
     saved: list[int] = []
     try:
+        planned = cfg.acoustic.iterations
         hooks.configure(cfg, log)
+        if progress and cfg.acoustic.iterations != planned:
+            from tqdm.auto import tqdm
+
+            tqdm.write(f"stage 2: {cfg.acoustic.iterations} iterations, sized to the scene's training data "
+                       f"(at most {planned}; --iterations N sets the count)")
         t0 = time.perf_counter()
         if initial_points is not None:
             points, gaussians = initial_points, None
