@@ -180,6 +180,25 @@ def test_no_context_control_trains_from_the_command_line(rir_scene, tmp_path):
     assert h.shape == (2, r.config.rir.length) and np.all(np.isfinite(h))
 
 
+def _train_killed_at(iteration: int, monkeypatch, *args, **kwargs) -> None:
+    """``train_scene(*args, **kwargs)`` killed (KeyboardInterrupt) as its trainer reaches ``iteration``;
+    the trainer's step is restored after."""
+    import avgs.train.impulse_responses as rir_train
+    from avgs.train.pipeline import train_scene
+
+    step = rir_train.RIRTrainer.step
+
+    def dying(self):
+        if self.iteration == iteration:
+            raise KeyboardInterrupt("killed")
+        return step(self)
+
+    monkeypatch.setattr(rir_train.RIRTrainer, "step", dying)
+    with pytest.raises(KeyboardInterrupt):
+        train_scene(*args, **kwargs)
+    monkeypatch.setattr(rir_train.RIRTrainer, "step", step)
+
+
 def test_a_killed_run_resumes_bit_exactly(rir_scene, tmp_path, monkeypatch):
     import avgs.train.impulse_responses as rir_train
     from avgs.train.pipeline import train_scene
@@ -187,18 +206,8 @@ def test_a_killed_run_resumes_bit_exactly(rir_scene, tmp_path, monkeypatch):
     cfg = rir_train.rir_quick_config()
     cfg.acoustic.iterations, cfg.checkpoint_every, cfg.eval_every, cfg.rir.eval_responses = 30, 10, 30, 0
     train_scene(rir_scene, tmp_path / "full.ckpt", cfg, task="rir", progress=False)
-    step = rir_train.RIRTrainer.step
-
-    def dying(self):
-        if self.iteration == 15:
-            raise KeyboardInterrupt("killed")
-        return step(self)
-
-    monkeypatch.setattr(rir_train.RIRTrainer, "step", dying)
-    with pytest.raises(KeyboardInterrupt):
-        train_scene(rir_scene, tmp_path / "part.ckpt", cfg, task="rir", progress=False)
+    _train_killed_at(15, monkeypatch, rir_scene, tmp_path / "part.ckpt", cfg, task="rir", progress=False)
     assert load_checkpoint(tmp_path / "part.ckpt")["train_state"]["iteration"] == 10
-    monkeypatch.setattr(rir_train.RIRTrainer, "step", step)
     train_scene(rir_scene, tmp_path / "part.ckpt", cfg, task="rir", progress=False, resume=True)
     a, b = load_checkpoint(tmp_path / "full.ckpt"), load_checkpoint(tmp_path / "part.ckpt")
     assert torch.equal(a["audio_points"]["X"], b["audio_points"]["X"])
@@ -221,17 +230,7 @@ def test_the_schedule_is_sized_to_the_training_responses_and_a_resume_keeps_it(r
     expected = math.ceil(cfg.rir.passes * responses / cfg.acoustic.batch_size)
     assert expected == 31 and rir_train.schedule_iterations(cfg, responses) == expected
     assert rir_train.schedule_iterations(cfg, 1) == 20  # at least least_iterations
-    step = rir_train.RIRTrainer.step
-
-    def dying(self):
-        if self.iteration == 15:
-            raise KeyboardInterrupt("killed")
-        return step(self)
-
-    monkeypatch.setattr(rir_train.RIRTrainer, "step", dying)
-    with pytest.raises(KeyboardInterrupt):
-        train_scene(rir_scene, tmp_path / "sized.ckpt", cfg, task="rir", progress=False)
-    monkeypatch.setattr(rir_train.RIRTrainer, "step", step)
+    _train_killed_at(15, monkeypatch, rir_scene, tmp_path / "sized.ckpt", cfg, task="rir", progress=False)
     resumed = rir_train.rir_quick_config()  # 300 iterations asked; the stored schedule's size wins
     resumed.rir.passes = 1.0
     final = train_scene(rir_scene, tmp_path / "sized.ckpt", resumed, task="rir", progress=False, resume=True)
