@@ -16,6 +16,8 @@ import json
 import re
 from pathlib import Path
 
+from rir_defaults_table import overall  # {method: {split: scores}} of an avgs eval --json report (this folder)
+
 RUN = re.compile(r"^(?P<scene>.+?)-(?P<setting>[a-z]+)(?P<iterations>\d+)\.log\.jsonl$")
 COLUMNS = (("val", "t60_pct", "{:.1f}"), ("val", "c50_db", "{:.2f}"), ("val", "edt_s", "{:.3f}"),
            ("heldout", "t60_pct", "{:.1f}"), ("heldout", "c50_db", "{:.2f}"), ("heldout", "edt_s", "{:.3f}"))
@@ -32,16 +34,6 @@ def read_log(path: Path) -> dict:
             out["seconds"] = float(r["seconds"])
         elif r.get("stage") == "final":
             out["val_logmag"] = r.get("val_logmag")
-    return out
-
-
-def scores(path: Path) -> dict[str, dict[str, dict]]:
-    """{method: {split: overall scores}} of an ``avgs eval --json`` report."""
-    report = json.loads(path.read_text())
-    out: dict[str, dict[str, dict]] = {}
-    for split, r in report["splits"].items():
-        for method, m in r["methods"].items():
-            out.setdefault(method, {})[split] = m["overall"]
     return out
 
 
@@ -63,12 +55,12 @@ def main() -> int:
     print("|" + "---|" * len(head))
     for scene in sorted({r[0] for r in runs}):
         base = args.folder / f"{scene}-baselines.eval.json"
-        for method, by_split in (scores(base).items() if base.is_file() else ()):
+        for method, by_split in (overall(base).items() if base.is_file() else ()):
             print("| " + " | ".join([scene, method, "", "", "", "", *cells(by_split)]) + " |")
         for _, setting, iterations, log in (r for r in runs if r[0] == scene):
             info = read_log(log)
             ev = log.with_name(log.name.replace(".log.jsonl", ".eval.json"))
-            by_split = next(iter(scores(ev).values())) if ev.is_file() else {}
+            by_split = next(iter(overall(ev).values())) if ev.is_file() else {}
             passes = iterations * args.batch_size / info["responses"] if info.get("responses") else float("nan")
             err = info.get("val_logmag")
             row = [scene, setting, str(iterations), f"{passes:.0f}", "" if err is None else f"{err:.3f}",
