@@ -27,6 +27,8 @@ TINY = "--quick --init sfm --no-gaussians --stage1-init-points 300"
 ITERATIONS, EVERY = 120, 20
 LEAN = dict(include_dashboard=False, object_store_memory=80 * 1024**2)
 "Each node's Ray: no dashboard, an 80 MB object store (a run's arguments and record are a few kB)."
+FAST_HEALTH_CHECK = {"health_check_initial_delay_ms": 0, "health_check_period_ms": 500, "health_check_failure_threshold": 4}
+"How often the head asks its nodes whether they live: a lost node is known in 2 s, not Ray's default 15 s."
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +36,7 @@ def cluster():
     pytest.importorskip("ray")
     from ray.cluster_utils import Cluster
 
-    cluster = Cluster(initialize_head=True, head_node_args=dict(num_cpus=0, **LEAN))
+    cluster = Cluster(initialize_head=True, head_node_args=dict(num_cpus=0, _system_config=FAST_HEALTH_CHECK, **LEAN))
     for _ in range(3):
         cluster.add_node(num_cpus=1, **LEAN)
     cluster.wait_for_nodes()

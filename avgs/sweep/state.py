@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from avgs.io.atomic import write_json
+from avgs.io.checkpoint_peek import peek_checkpoint
 from avgs.sweep.spec import Run
 
 STATUS = "status.json"
@@ -74,22 +75,21 @@ def end_unfinished(folder: Path, status: str, reason: str) -> None:
 def checkpoint_progress(path: Path) -> tuple[int, bool] | None:
     """(stage-2 iteration saved, finished) of a checkpoint, or None when there is none or it cannot be read.
 
-    Reads the file memory-mapped, without validating it (``avgs train --resume`` validates it,
-    and reports a damaged one as the run's failure).
+    Reads its plain values without torch (:func:`avgs.io.checkpoint_peek.peek_checkpoint`: a Ray
+    worker on a busy node took 40 s to import torch for this) and without validating it (``avgs
+    train --resume`` validates it, and reports a damaged one as the run's failure).
     """
     path = Path(path)
     if not path.is_file():
         return None
-    import torch
-
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+        ckpt = peek_checkpoint(path)
     except Exception:  # noqa: BLE001 - any unreadable file is "not finished"; resuming says why
         return (0, False)
     history = ckpt.get("history") if isinstance(ckpt, dict) else None
     state = ckpt.get("train_state") if isinstance(ckpt, dict) else None
     iteration = state.get("iteration", 0) if isinstance(state, dict) else 0
-    finished = bool(history) and isinstance(history[-1], dict) and history[-1].get("stage") == "final"
+    finished = isinstance(history, list) and bool(history) and isinstance(history[-1], dict) and history[-1].get("stage") == "final"
     return (int(iteration) if isinstance(iteration, int) else 0, finished)
 
 
