@@ -11,6 +11,9 @@ noise phase from t = 0, what the task did before it placed the direct sound by g
     avgs eval --task rir data/rir --methods nearest,linear --split both --out runs/rir_spatial/baselines.json
     python scripts/rir_spatial_table.py data/rir runs/rir_spatial        # scores the checkpoints, prints markdown
 
+A run folder's ``*.ckpt`` may be a link (runs trained elsewhere, laid out for this script); ``--times``
+reads the training log beside the file it links to.
+
 Every checkpoint's scores go to ``<run folder>/spatial.json`` (made once: a second call reads them).
 """
 
@@ -93,6 +96,8 @@ def main() -> int:
     parser.add_argument("sweep", type=Path, help="the sweep's folder: <scene>/<setting>/seed<k>/ and baselines.json")
     parser.add_argument("--again", action="store_true",
                         help="score the checkpoints as they are anew with this code (rendering changes); 'before' kept")
+    parser.add_argument("--times", action="store_true",
+                        help="also each setting's stage-2 iterations and training time, from each checkpoint's log")
     args = parser.parse_args()
     # {row: {split: {metric: [value per seed]}}}, each value the mean over the environments
     rows: dict[str, dict[str, dict[str, list[float]]]] = {}
@@ -127,7 +132,24 @@ def main() -> int:
             n = len(splits[split]["t60_pct"])
             label = f"{name} ({n} seeds)" if n > 1 else name
             print("| " + " | ".join([label] + [cell(splits[split][k], fmt) for k, _, fmt in METRICS]) + " |")
+    if args.times:
+        print("\n| setting | runs | stage-2 iterations | stage-2 minutes: median (min - max) |\n|---|---|---|---|")
+        for setting in settings:
+            runs = [training_time(p) for p in sorted(args.sweep.glob(f"*/{setting}/seed*"))]
+            minutes = sorted(s / 60 for _, s in runs)
+            iterations = sorted({i for i, _ in runs})
+            print(f"| {setting} | {len(runs)} | {', '.join(map(str, iterations))} | "
+                  f"{statistics.median(minutes):.1f} ({minutes[0]:.1f} - {minutes[-1]:.1f}) |")
     return 0
+
+
+def training_time(run: Path) -> tuple[int, float]:
+    """(stage-2 iterations, seconds) of the run's checkpoint: its log's last stage-2 record (the log
+    beside the checkpoint the run folder's ``*.ckpt`` is, or links to)."""
+    ckpt = next(p for p in run.glob("*.ckpt") if not p.name.endswith(".before.ckpt")).resolve()
+    records = [json.loads(line) for line in Path(f"{ckpt}.log.jsonl").read_text().splitlines() if line.strip()]
+    last = [r for r in records if r.get("stage") == "stage2" and "seconds" in r][-1]
+    return int(last["iteration"]), float(last["seconds"])
 
 
 if __name__ == "__main__":
