@@ -2,8 +2,9 @@
 T60, C50, EDT and the onset, direct-sound ITD, early ILD and lateralisation of ``avgs eval --task rir``,
 overall (the mean of the environments' means), for the baselines and for each sweep setting's
 checkpoints (mean over seeds ± their standard deviation), each checkpoint also heard "before": the
-same weights with the direct sound left to B (``direct_sound`` and ``direct_ild`` off: a fixed-seed
-noise phase from t = 0, what the task did before it placed the direct sound by geometry).
+same weights with the direct sound left to B (``direct_sound`` and everything fitted with it off, B's wall
+term included: a fixed-seed noise phase from t = 0, what the task did before it placed the direct sound by
+geometry).
 
     avgs sweep --data data/rir --out runs/rir_spatial --seeds 0 1 2 --eval-split none \\
         --common="--quick --rir-width 256 --iterations 400" --setting avgs="--task rir" \\
@@ -26,7 +27,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from avgs.acoustics.rir_binauralizer import ILD_BUFFERS, ITD_BUFFERS, LEVEL_BUFFERS
+from avgs.acoustics.rir_binauralizer import ILD_BUFFERS, ITD_BUFFERS, LEVEL_BUFFERS, WALL_BUFFERS
 from avgs.io.checkpoint import load_checkpoint, save_checkpoint
 
 METRICS = (("t60_pct", "T60 %", "{:.1f}"), ("c50_db", "C50 dB", "{:.2f}"), ("edt_s", "EDT s", "{:.3f}"),
@@ -36,7 +37,9 @@ SPLITS = ("val", "heldout")
 
 
 def without_direct_sound(ckpt: Path, out: Path) -> Path:
-    """A copy of ``ckpt`` whose responses leave the direct sound to B (the task before it was placed)."""
+    """A copy of ``ckpt`` whose responses leave the direct sound to B (the task before it was placed):
+    no placed impulse, no fitted ITD, ILD or level law, and no wall term (which counts the walls on the
+    direct sound's straight path)."""
     if not out.is_file():
         data = load_checkpoint(ckpt)
         data["config"]["rir"]["direct_sound"] = False
@@ -44,7 +47,8 @@ def without_direct_sound(ckpt: Path, out: Path) -> Path:
         data["config"]["rir"]["direct_itd"] = False
         data["config"]["rir"]["ild_local"] = False
         data["config"]["rir"]["direct_level"] = False
-        for key in ITD_BUFFERS + ILD_BUFFERS + LEVEL_BUFFERS:
+        data["config"]["rir"]["wall_loss"] = False  # B's wall term is counted on the direct sound's straight path
+        for key in ITD_BUFFERS + ILD_BUFFERS + LEVEL_BUFFERS + WALL_BUFFERS:
             data["binauralizer"].pop(key, None)  # the fitted head's, which such a model does not have
         save_checkpoint(data, out)
     return out
