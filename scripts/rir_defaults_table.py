@@ -37,18 +37,23 @@ def cell(values: list[float], fmt: str) -> str:
     return f"{fmt.format(statistics.fmean(values))} ± {fmt.format(statistics.stdev(values))}"
 
 
+def last_stage2(log: Path) -> tuple[dict | None, bool]:
+    """(the last stage-2 record of a training log that carries its seconds, or None; whether the log
+    ends the run with a "final" record)."""
+    recs = [json.loads(line) for line in log.read_text().splitlines() if line.strip()]
+    stage2 = [r for r in recs if r.get("stage") == "stage2" and "seconds" in r]
+    return (stage2[-1] if stage2 else None), any(r.get("stage") == "final" for r in recs)
+
+
 def training(folder: Path) -> list[str]:
     """One line per run: its stage-2 iterations and seconds (the log's last stage-2 record)."""
     lines = []
     for log in sorted(folder.glob("*-s*.log.jsonl")):
-        recs = [json.loads(line) for line in log.read_text().splitlines() if line.strip()]
-        stage2 = [r for r in recs if r.get("stage") == "stage2" and "seconds" in r]
-        stage1 = [r for r in recs if r.get("stage") == "final"]
-        if stage2:
-            last = stage2[-1]
+        last, finished = last_stage2(log)
+        if last is not None:
             lines.append(f"{log.name.split('.')[0]}: {last['iteration']} iterations in {last['seconds']:.0f} s "
                          f"({1e3 * last['seconds'] / max(1, last['iteration']):.1f} ms/it)"
-                         + ("" if stage1 else ", no final record (stopped)"))
+                         + ("" if finished else ", no final record (stopped)"))
     return lines
 
 

@@ -29,6 +29,7 @@ from pathlib import Path
 
 from avgs.acoustics.rir_binauralizer import ILD_BUFFERS, ITD_BUFFERS, LEVEL_BUFFERS, WALL_BUFFERS
 from avgs.io.checkpoint import load_checkpoint, save_checkpoint
+from rir_defaults_table import last_stage2  # a training log's last stage-2 record (this folder)
 
 METRICS = (("t60_pct", "T60 %", "{:.1f}"), ("c50_db", "C50 dB", "{:.2f}"), ("edt_s", "EDT s", "{:.3f}"),
            ("onset_ms", "onset ms", "{:.2f}"), ("itd_us", "ITD us", "{:.0f}"), ("ild_db", "ILD dB", "{:.2f}"),
@@ -151,8 +152,9 @@ def training_time(run: Path) -> tuple[int, float]:
     """(stage-2 iterations, seconds) of the run's checkpoint: its log's last stage-2 record (the log
     beside the checkpoint the run folder's ``*.ckpt`` is, or links to)."""
     ckpt = next(p for p in run.glob("*.ckpt") if not p.name.endswith(".before.ckpt")).resolve()
-    records = [json.loads(line) for line in Path(f"{ckpt}.log.jsonl").read_text().splitlines() if line.strip()]
-    last = [r for r in records if r.get("stage") == "stage2" and "seconds" in r][-1]
+    last, _ = last_stage2(Path(f"{ckpt}.log.jsonl"))
+    if last is None:
+        raise SystemExit(f"{ckpt}.log.jsonl: no stage-2 record with its seconds")
     return int(last["iteration"]), float(last["seconds"])
 
 
