@@ -7,6 +7,7 @@
 # `avgs render` on the GPU) on a quick scene:
 #   avgs synth /tmp/bq --preset office --scene-id office_quick --quick; prepare.py /tmp/bq/office_quick --frames
 #   device run (carry .gpu): bash scripts/device/cuda_check.sh binaural
+# Run the two one after the other, not side by side: each unpacks .gpu/data in place.
 set -u
 T0=$(date +%s)
 python3 -m pip install -q --no-deps --no-index --no-compile --target /tmp/site \
