@@ -221,10 +221,12 @@ class RIRConfig:
     "With direct_sound: the direct sound's ITD from a law of the source's direction (avgs.acoustics.interaural.itd_law, three sine harmonics) fitted to the early ITDs of the training responses in sight of the source, not from Woodworth's sphere with a fitted scale: a measured head's ITD has its own shape (fewer than 24 such responses: the sphere)."
     direct_ild: bool = True
     "With direct_sound: the early ILD (the first 5 ms) from a law of the source's direction fitted to the training responses in sight of the source (avgs.acoustics.interaural.ild_law, three sine harmonics), not from B's ears: the head shadow is the head's, which B learns from the room's whole response (two_rooms: early ILD error 2.72 / 3.24 -> 1.95 / 2.43 dB, val / held out), where the straight path is free (avgs.acoustics.line_of_sight: G_a's points along it, the threshold fitted to the training pairs' first arrivals); behind a wall, and with this off, B's."
-    ild_local: bool = True
-    "With direct_ild: the law corrected near the training responses in sight of the source by their early ILDs' residual from it (avgs.acoustics.interaural.local_correction: the 3 nearest in listener, source and direction, inverse-distance weighted): the floor's and the near walls' reflections in the first 5 ms depend on where the listener and source are, not on the direction alone (law alone / with this, on the simulator's own responses, held-out sources: 2.0 / 1.5 dB over six presets)."
+    ild_local: bool = False
+    "Off by default since early_reflections, which explain most of what it corrected and reach held-out sources, where it does not (six presets, three seeds, the walls' reflections with / without it: early ILD 1.15 / 1.17 dB on val, 1.16 / 1.06 dB held out). With direct_ild: the law corrected near the training responses in sight of the source by their early ILDs' residual from it (avgs.acoustics.interaural.local_correction: the 3 nearest in listener, source and direction, inverse-distance weighted): the floor's and the near walls' reflections in the first 5 ms depend on where the listener and source are, not on the direction alone (law alone / with this, on the simulator's own responses, held-out sources: 2.0 / 1.5 dB over six presets)."
     ild_table: int = 0
     "Entries of that correction (training responses in sight; set at training, stored with the checkpoint; 0: the law alone)."
+    early_reflections: bool = True
+    "With direct_ild: the first 5 ms's ILD from the direct sound and the walls' first-order reflections that arrive within them, each given the law at its own direction (avgs.acoustics.early_reflections: walls found in G_a's points by RANSAC, a reflection counted where the points put a wall at its reflection point and both its legs are free), the law and the walls' gain fitted together to the training responses in sight of the source, not from the law of the straight direction alone: the reflections off the walls beside the head arrive from other directions (on the simulator's own responses in sight, held-out sources, six presets: law alone 1.6-2.7 dB, with the walls 0.8-1.0 dB). No wall found: the law alone."
     direct_level: bool = True
     "With direct_sound: the direct sound's energy from geometry where the straight path is free, 1 / d^2 times a gain of the direction (avgs.acoustics.interaural.direct_level_db) fitted to the training responses in sight of the source, taken out of B's first window, which holds it smeared, not from B's first frames alone, which a network of the distance extrapolates near the source (the level against distance, max error over 0.5-5 m, three seeds: u_room 3.8-4.4 -> 1.8-2.2 dB, l_room 1.6-2.7 -> 0.4-0.6 dB; docs/rir_level_distance.md)."
     wall_loss: bool = True
@@ -400,7 +402,7 @@ ADDED_LATER = {
     "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False, "interaural_delay": False},
     "gaussians": {"cpu_max_pixels": 0},
     "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0, "direct_sound": False,
-            "direct_ild": False, "direct_itd": False, "ild_local": False, "ild_table": 0,
+            "direct_ild": False, "direct_itd": False, "ild_local": False, "ild_table": 0, "early_reflections": False,
             "direct_level": False, "wall_loss": False, "passes": 0.0,
             "least_iterations": 3000},
 }

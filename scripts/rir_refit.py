@@ -1,9 +1,12 @@
 """Give an impulse-response checkpoint what ``avgs train`` now fits at its start without training again:
-the early ILD's local correction (``RIRConfig.ild_local``) and the direct sound's level law
-(``RIRConfig.direct_level``), fitted from the scene's training responses exactly as training does
-(:meth:`avgs.train.impulse_responses.ImpulseResponseTraining.configure`); the weights and every other
-buffer stay (neither fit depends on them). For checkpoints trained before these existed (the sweep
-tables of docs/results.md, the bundled demo). ``--no-level``: the local correction alone.
+the early ILD's law, the direct sound's level law (``RIRConfig.direct_level``) and the walls' early
+reflections (``RIRConfig.early_reflections``: the walls found in the checkpoint's own points, the ILD
+law refitted with their gain), fitted from the scene's
+training responses exactly as training does (:meth:`avgs.train.impulse_responses.ImpulseResponseTraining.configure`
+and ``fit_reflections``); the weights and every other buffer stay (no fit depends on them). For
+checkpoints trained before these existed (the tables of docs/results.md, the bundled demo).
+``--no-level``: without the level law; ``--no-reflections``: without the walls' reflections; ``--local``: with
+the local correction (off by default since the walls' reflections: ``RIRConfig.ild_local``).
 
     python scripts/rir_refit.py data/rir/two_rooms runs/two_rooms.ckpt runs/two_rooms.refit.ckpt
 """
@@ -15,7 +18,9 @@ import warnings
 
 import torch
 
+from avgs.acoustics.rir_binauralizer import ILD_BUFFERS, RIRBinauralizer
 from avgs.io.checkpoint import config_of, load_checkpoint, save_checkpoint
+from avgs.render.renderer import SceneRenderer
 from avgs.train.impulse_responses import ImpulseResponseTraining
 
 
@@ -24,39 +29,63 @@ class _Quiet:
         pass
 
 
-def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True) -> str:
-    """Write ``out_path``: ``ckpt_path`` with the local correction (and ``level``: the level law) fitted on
-    ``scene_dir``; what was added, in words."""
+def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, reflections: bool = True,
+          local: bool = False) -> str:
+    """Write ``out_path``: ``ckpt_path`` with the level law (``level``), the walls' reflections
+    (``reflections``) and the early ILD's local correction (``local``) fitted on ``scene_dir``, each left
+    out when not asked for; what was added, in words."""
     data = load_checkpoint(ckpt_path)
     cfg = config_of(data)
     if not (cfg.rir.direct_sound and cfg.rir.direct_ild):
-        raise SystemExit(f"{ckpt_path}: no ILD law to correct (direct_sound and direct_ild must be on)")
-    cfg.rir.ild_local = True
+        raise SystemExit(f"{ckpt_path}: no ILD law to refit (direct_sound and direct_ild must be on)")
+    cfg.rir.ild_local = local
     cfg.rir.direct_level = level
     task = ImpulseResponseTraining(scene_dir, cfg)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         task.configure(cfg, _Quiet())
-    if task.ild_table is None:
+    if task.ild_law is None:
         raise SystemExit(f"{scene_dir}: too few training responses in sight of the source for the ILD law")
-    at, residual, scale = task.ild_table
-    data["config"]["rir"]["ild_local"] = True
-    data["config"]["rir"]["ild_table"] = int(residual.shape[0])
-    data["binauralizer"]["local_at"], data["binauralizer"]["local_residual"], data["binauralizer"]["local_scale"] = at, residual, scale
-    said = f"{int(residual.shape[0])} training responses in the ILD's local correction"
+    data["binauralizer"]["ild_law"] = torch.tensor(task.ild_law, dtype=torch.float32)
+    data["config"]["rir"]["ild_local"] = task.ild_table is not None
+    data["config"]["rir"]["ild_table"] = 0 if task.ild_table is None else int(task.ild_table[1].shape[0])
+    for key in ("local_at", "local_residual", "local_scale"):
+        data["binauralizer"].pop(key, None)
+    said = ""
+    if task.ild_table is not None:
+        at, residual, scale = task.ild_table
+        data["binauralizer"]["local_at"], data["binauralizer"]["local_residual"], data["binauralizer"]["local_scale"] = at, residual, scale
+        said += f", {int(residual.shape[0])} training responses in the ILD's local correction"
     data["config"]["rir"]["direct_level"] = task.level_law is not None
     if task.level_law is not None:
         data["binauralizer"]["level_law"] = torch.tensor(task.level_law, dtype=torch.float32)
         said += ", the level law " + " / ".join(f"{c:.2f}" for c in task.level_law) + " dB"
     else:
         data["binauralizer"].pop("level_law", None)
+    data["config"]["rir"]["early_reflections"] = reflections
+    for key in ILD_BUFFERS[ILD_BUFFERS.index("reflecting_walls"):]:
+        data["binauralizer"].pop(key, None)
+    if reflections:  # the walls from the checkpoint's points, as training finds them once G_a is built
+        empty = RIRBinauralizer(config_of(data).rir, None, 1, 1, 1.0).state_dict()
+        data["binauralizer"].update({k: empty[k] for k in ILD_BUFFERS[ILD_BUFFERS.index("reflecting_walls"):]})
+        renderer = SceneRenderer(data, path=ckpt_path)
+        task.fit_reflections(renderer.model)
+        state = renderer.model.binauralizer.state_dict()
+        for key in ("ild_law", "local_residual") + ILD_BUFFERS[ILD_BUFFERS.index("reflecting_walls"):]:
+            if key in state:
+                data["binauralizer"][key] = state[key].detach().float().cpu().clone()
+        walls = int((state["reflecting_walls"][:, :2].abs().sum(-1) > 0).sum())
+        said += f", {walls} walls' reflections (gain {float(state['reflection_gain']):.2f})"
+    law = " / ".join(f"{float(c):.2f}" for c in data["binauralizer"]["ild_law"])
     save_checkpoint(data, out_path)
-    return said
+    return f"the ILD law {law} dB" + said
 
 
 if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a != "--no-level"]
+    args = [a for a in sys.argv[1:] if a not in ("--no-level", "--no-reflections", "--local")]
     if len(args) != 3:
         print(__doc__)
         sys.exit(2)
-    print(f"{args[2]}: {refit(*args, level='--no-level' not in sys.argv)}")
+    said = refit(*args, level="--no-level" not in sys.argv, reflections="--no-reflections" not in sys.argv,
+                 local="--local" in sys.argv)
+    print(f"{args[2]}: {said}")

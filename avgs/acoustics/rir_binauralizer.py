@@ -73,6 +73,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from avgs.acoustics.early_reflections import MAX_WALLS, SURFACE_POINTS
 from avgs.acoustics.encodings import encoded_dim, positional_encoding
 from avgs.acoustics.interaural import DEFAULT_SCALE, ILD_HARMONICS, ITD_HARMONICS
 from avgs.config import RIRConfig
@@ -101,7 +102,8 @@ LEVEL_BUFFERS = ("level_law",)
 WALL_BUFFERS = ("wall_loss", "wall_radius", "wall_margin", "wall_unit")
 "B's wall term, fitted at training (direct_sound, wall_loss): a checkpoint without them has none."
 
-ILD_BUFFERS = ("ild_law", "sight_radius", "sight_margin", "sight_blocked", "local_at", "local_residual", "local_scale")
+ILD_BUFFERS = ("ild_law", "sight_radius", "sight_margin", "sight_blocked", "local_at", "local_residual", "local_scale",
+               "reflecting_walls", "reflection_gain", "reflection_radius", "reflection_points", "reflection_band")
 "The direct sound's ILD, fitted at training (direct_ild, ild_local): a checkpoint without them has none."
 
 
@@ -192,6 +194,18 @@ class RIRBinauralizer(nn.Module):
             self.register_buffer("local_scale", torch.ones(6))
         else:
             self.local_at = None
+        if cfg.direct_sound and cfg.direct_ild and cfg.early_reflections:
+            # the walls' first-order reflections in the first 5 ms (avgs.acoustics.early_reflections), fitted by
+            # avgs.train: the walls' planes [MAX_WALLS, 3] (n_x, n_y, d in model units; rows of zeros: no wall),
+            # their amplitude gain, and the reflection point's test (G_a's points within `reflection_radius`, at
+            # least `reflection_points` of them) and the band of a wall's own points left out of its legs' test
+            self.register_buffer("reflecting_walls", torch.zeros(MAX_WALLS, 3))
+            self.register_buffer("reflection_gain", torch.tensor(0.0))
+            self.register_buffer("reflection_radius", torch.tensor(0.0))
+            self.register_buffer("reflection_points", torch.tensor(float(SURFACE_POINTS)))
+            self.register_buffer("reflection_band", torch.tensor(0.0))
+        else:
+            self.reflecting_walls = None
 
     def time_features(self) -> torch.Tensor:
         """``W_t PE(t) + b_t`` for every frame ``[N, W]``: cacheable."""

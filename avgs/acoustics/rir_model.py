@@ -31,6 +31,7 @@ import torch
 from torch import nn
 
 from avgs import dsp
+from avgs.acoustics.early_reflections import WINDOW_S, ReflectionTest, early_ild, wall_point_sets, wall_reflections
 from avgs.acoustics.field import AcousticField
 from avgs.acoustics.interaural import (direct_level_db, ear_delays, ild_law, itd_law, lagging_ear, local_correction,
                                       local_features)
@@ -172,7 +173,7 @@ class RIRModel(AVGSModel):
         ild = None
         blocked = torch.zeros_like(distance, dtype=torch.bool)  # [B] the straight path behind a wall
         if law is not None:  # the head shadow where the straight path is free; behind a wall (NaN) B's ILD
-            ild = ild_law(theta, law.double())
+            ild = self.early_ild(listener, yaw, source, theta, distance)
             if getattr(b, "local_at", None) is not None:  # and the room's part near the training responses
                 where = local_features(listener.double(), source.double(), theta) / b.local_scale.double()
                 ild = ild + local_correction(where, b.local_at.double(), b.local_residual.double())
@@ -188,6 +189,41 @@ class RIRModel(AVGSModel):
         itd = getattr(b, "itd_law", None)  # the fitted head's law, else Woodworth's sphere with the fitted scale
         delays = ear_delays(theta, float(scale)) if itd is None else lagging_ear(itd_law(theta, itd.double()))  # [B, 2] s
         return DirectSound(distance / self.rir.sound_speed, delays, ild, energy)
+
+
+    def early_ild(self, listener: torch.Tensor, yaw: torch.Tensor, source: torch.Tensor, theta: torch.Tensor,
+                  distance: torch.Tensor) -> torch.Tensor:
+        """The first 5 ms's ILD ``[B]`` dB where the straight path is free: the law at the direction ``theta [B]``,
+        or, with the walls' reflections (``RIRConfig.early_reflections``), the direct sound's and theirs mixed
+        (:func:`avgs.acoustics.early_reflections.early_ild`). listener, source [B, 3] normalised; yaw [B]
+        radians; distance [B] the straight path."""
+        b = self.binauralizer
+        law = b.ild_law.double()
+        walls = getattr(b, "reflecting_walls", None)
+        if walls is not None:
+            walls = walls[walls[:, :2].abs().sum(-1) > 0]  # [P, 3] the walls found (rows of zeros: none)
+        if walls is None or walls.shape[0] == 0:
+            return ild_law(theta, law)
+        test = ReflectionTest(float(b.reflection_radius), int(b.reflection_points), float(b.reflection_band),
+                              float(b.sight_radius), float(b.sight_margin), float(b.sight_blocked))
+        points = self.points.X.detach()
+        key = (points.data_ptr(), tuple(points.shape), _version(points), walls.tolist(), test)
+        if getattr(self, "_wall_points", (None,))[0] != key:  # each wall's own points and the rest: fixed while G_a is
+            self._wall_points = (key, wall_point_sets(points, walls, test))
+        found = wall_reflections(listener.detach(), source.detach(), walls, points, test,
+                                 longest=distance + WINDOW_S * self.rir.sound_speed, point_sets=self._wall_points[1])
+        P = walls.shape[0]
+        reflected = signed_direction(listener.double()[:, None].expand(-1, P, -1), yaw.double()[:, None].expand(-1, P),
+                                     found.image)  # [B, P] each image source's direction
+        return early_ild(theta, distance, reflected, found.path, found.happens, law, float(b.reflection_gain))
+
+
+def _version(t: torch.Tensor) -> int:
+    """``t``'s in-place version counter (0 for a tensor made in inference mode, which keeps none: it cannot change)."""
+    try:
+        return int(t._version)
+    except RuntimeError:
+        return 0
 
 
 @dataclass(frozen=True)

@@ -67,6 +67,10 @@ def summary(path) -> dict:
                          else [float(c) for c in ckpt["binauralizer"]["level_law"]]),
         "ild_local_responses": (None if ckpt["binauralizer"].get("local_residual") is None
                                 else int(ckpt["binauralizer"]["local_residual"].numel())),
+        "reflecting_walls": (None if ckpt["binauralizer"].get("reflecting_walls") is None
+                             else int((ckpt["binauralizer"]["reflecting_walls"][:, :2].abs().sum(-1) > 0).sum())),
+        "reflection_gain": (None if ckpt["binauralizer"].get("reflection_gain") is None
+                            else float(ckpt["binauralizer"]["reflection_gain"])),
         "blocked_from_points": (None if ckpt["binauralizer"].get("sight_blocked") is None
                                 else float(ckpt["binauralizer"]["sight_blocked"])),
         "wall_loss_db": (None if ckpt["binauralizer"].get("wall_loss") is None
@@ -154,7 +158,10 @@ def run(args: argparse.Namespace) -> int:
                  f"where the straight path is free (behind a wall from {blocked:.0f} audio points along it: B's ILD)")
         local = info["ild_local_responses"]
         near = f", corrected near the {local} training responses in sight by their early ILDs" if local else ""
-        print(f"  direct sound's ILD: {law} dB{near}, {where}")
+        walls = info["reflecting_walls"]
+        mixed = (f", mixed with the first reflections off {walls} walls found in the audio points (gain "
+                 f"{info['reflection_gain']:.2f})" if walls else "")
+        print(f"  direct sound's ILD: {law} dB{mixed}{near}, {where}")
     if info["level_law_db"] is not None:
         c0, c1, c2 = info["level_law_db"]
         print(f"  direct sound's level: {c0:.1f} {'-' if c1 < 0 else '+'} {abs(c1):.1f} cos theta {'-' if c2 < 0 else '+'} "

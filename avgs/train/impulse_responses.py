@@ -272,16 +272,17 @@ def direct_energy(h: np.ndarray, fs: float, itd: float, first: int | None = None
     return float(np.sum(np.asarray(h[:, lo:hi], dtype=np.float64) ** 2))
 
 
-def local_table(train, theta: torch.Tensor, ilds: np.ndarray, in_sight: np.ndarray, law) -> tuple:
+def local_table(train, theta: torch.Tensor, ilds: np.ndarray, in_sight: np.ndarray, predicted) -> tuple:
     """The ILD law's local correction (:func:`avgs.acoustics.interaural.local_correction`) from the training
     pairs ``train`` (normalised positions) in sight of the source, at directions ``theta [M]``, with early
-    ILDs ``ilds [M]`` dB: ``(local_at [m, 6], local_residual [m], local_scale [6])`` float32, the pairs
-    whose ILD is finite."""
+    ILDs ``ilds [M]`` dB against what the model gives them, ``predicted [M]`` dB (the law, or the law with the
+    walls' reflections): ``(local_at [m, 6], local_residual [m], local_scale [6])`` float32, the pairs whose
+    ILD is finite."""
     keep = np.asarray(in_sight, dtype=bool) & np.isfinite(ilds)
     listener = torch.as_tensor(np.asarray(train.receiver, dtype=np.float64)[keep])
     source = torch.as_tensor(np.asarray(train.source, dtype=np.float64)[keep])
     th = theta[torch.as_tensor(keep)].double()
-    residual = torch.as_tensor(ilds[keep], dtype=torch.float64) - ild_law(th, torch.as_tensor(law, dtype=torch.float64))
+    residual = torch.as_tensor(ilds[keep], dtype=torch.float64) - torch.as_tensor(np.asarray(predicted, dtype=np.float64)[keep])
     where = local_features(listener, source, th)  # [m, 6]
     scale = fit_local_scale(where)
     return (where / scale).float(), residual.float(), scale.float()
@@ -310,6 +311,9 @@ class ImpulseResponseTraining:
         self.ild_table: tuple | None = None  # (local_at [M, 6], local_residual [M], local_scale [6]): the law's local correction
         self.level_law: list[float] | None = None  # dB coefficients of the direct sound's level law, likewise
         self._in_sight: np.ndarray | None = None  # [M] training pairs whose first arrival is the direct sound
+        self._theta: torch.Tensor | None = None  # [M] their directions, radians
+        self._ilds: np.ndarray | None = None  # [M] their early ILDs, dB
+        self._seed = int(cfg.seed)
         self._log: JsonLinesLog | None = None
 
     def configure(self, cfg: TrainConfig, log: JsonLinesLog) -> None:
@@ -348,6 +352,7 @@ class ImpulseResponseTraining:
                                       axis=-1)  # [M] normalised units, as the speed of sound
             in_sight = spatial.in_sight(onsets, distance, cfg.rir.sound_speed)  # the first arrival is the direct sound
             self._in_sight = in_sight  # the straight path's tests are fitted on them with the model's points (trainer)
+            self._theta, self._ilds = theta, np.asarray(ilds, dtype=np.float64)  # for the walls' reflections (trainer)
             if cfg.rir.direct_itd:  # the head's own ITD against the direction, from those responses
                 law = fit_itd_law(theta.numpy()[in_sight], -np.asarray(itds)[in_sight])
                 self.itd_law = None if law is None else [float(c) for c in law]
@@ -366,7 +371,8 @@ class ImpulseResponseTraining:
                 log.write({"stage": "ild", "event": "fit", "harmonics_db": self.ild_law, "responses": int(in_sight.sum())})
                 cfg.rir.ild_table = 0
                 if law is not None and cfg.rir.ild_local:  # what the room adds to the law near the training responses
-                    self.ild_table = local_table(train, theta, np.asarray(ilds), in_sight, law)
+                    self.ild_table = local_table(train, theta, np.asarray(ilds), in_sight,
+                                                 ild_law(theta, torch.as_tensor(law, dtype=torch.float64)).numpy())
                     cfg.rir.ild_table = int(self.ild_table[1].shape[0])
                     log.write({"stage": "ild", "event": "local", "responses": cfg.rir.ild_table,
                                "median_abs_residual_db": float(self.ild_table[1].abs().median()) if cfg.rir.ild_table else None})
@@ -391,6 +397,52 @@ class ImpulseResponseTraining:
             self._log.write({"stage": "sight", "event": "fit", "blocked_from_points": threshold, "pairs_in_sight": int(sight.sum()),
                              "pairs_behind": int((~sight).sum()), "agree_in_sight": int((~blocked & sight).sum()),
                              "agree_behind": int((blocked & ~sight).sum())})
+
+    def fit_reflections(self, model: RIRModel) -> None:
+        """The walls' first-order reflections in the first 5 ms (``RIRConfig.early_reflections``,
+        :mod:`avgs.acoustics.early_reflections`): the walls found in G_a's points, and the ILD law with the walls'
+        gain fitted together to the training pairs in sight of the source, into ``model``'s buffers (its
+        local correction's residuals then taken against them). No wall, or no fit: the law alone, as it was.
+        After the straight path's test (:meth:`_fit_sight`), which the reflections' legs share."""
+        from avgs.acoustics import early_reflections as er
+
+        b, scale, train = model.binauralizer, float(self.scene.frame.scale), self.train_set
+        points = model.points.X.detach().double().cpu()
+        walls = er.find_walls(points, scale, seed=self._seed)  # [P, 3]
+        test = er.ReflectionTest(er.SURFACE_RADIUS_M * scale, er.SURFACE_POINTS, er.WALL_BAND_M * scale,
+                                 float(b.sight_radius), float(b.sight_margin), float(b.sight_blocked))
+        listener = torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64)
+        source = torch.as_tensor(np.asarray(train.source), dtype=torch.float64)
+        yaw = torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64)))
+        distance = torch.linalg.vector_norm(source - listener, dim=-1)  # [M]
+        found = er.wall_reflections(listener, source, walls, points, test, longest=distance + er.WINDOW_S * model.rir.sound_speed)
+        P = walls.shape[0]
+        reflected = signed_direction(listener[:, None].expand(-1, P, -1), yaw[:, None].expand(-1, P), found.image)  # [M, P]
+        sight = torch.as_tensor(self._in_sight)
+        fit = er.fit_early_ild(self._theta[sight], distance[sight], reflected[sight], found.path[sight], found.happens[sight],
+                               self._ilds[self._in_sight], b.ild_law.double().numpy()) if P else None
+        record = {"stage": "reflections", "event": "fit", "walls": P, "pairs_in_sight": int(sight.sum()),
+                  "reflections_per_pair": float(found.happens[sight].double().sum(-1).mean()) if P else 0.0}
+        if fit is not None:
+            law, gain = fit
+            with torch.no_grad():
+                b.reflecting_walls.zero_()
+                b.reflecting_walls[:P].copy_(walls[: b.reflecting_walls.shape[0]])
+                b.reflection_gain.fill_(gain)
+                b.reflection_radius.fill_(test.surface_radius)
+                b.reflection_points.fill_(float(test.surface_points))
+                b.reflection_band.fill_(test.wall_band)
+                b.ild_law.copy_(torch.as_tensor(law))
+            self.ild_law = [float(c) for c in law]
+            predicted = er.early_ild(self._theta, distance, reflected, found.path, found.happens, torch.as_tensor(law), gain)
+            residual = (torch.as_tensor(self._ilds) - predicted)[sight]
+            record.update({"gain": gain, "harmonics_db": self.ild_law, "median_abs_residual_db": float(residual.abs().nanmedian())})
+            if getattr(b, "local_at", None) is not None:  # the local correction: what the walls leave
+                self.ild_table = local_table(train, self._theta, self._ilds, self._in_sight, predicted.numpy())
+                with torch.no_grad():
+                    b.local_residual.copy_(self.ild_table[1])
+        if self._log is not None:
+            self._log.write(record)
 
     def _counts_on_paths(self, model: RIRModel, radius: float, margin: float) -> np.ndarray:
         """How many of G_a's points lie along each training pair's straight path ``[M]`` (model units)."""
@@ -439,6 +491,8 @@ class ImpulseResponseTraining:
                     for name, value in zip(("local_at", "local_residual", "local_scale"), self.ild_table):
                         getattr(model.binauralizer, name).copy_(value)
             self._fit_sight(model)
+            if getattr(model.binauralizer, "reflecting_walls", None) is not None:
+                self.fit_reflections(model)
         if not resumed and self._in_sight is not None and getattr(model.binauralizer, "wall_loss", None) is not None:
             self._fit_walls(model)
         if resumed:

@@ -1,0 +1,245 @@
+"""The walls' first reflections, and the early ILD they give the first 5 ms of a response.
+
+The early ILD (:func:`avgs.evaluation.spatial.early_ild`) reads both ears' energy over the 5 ms
+after the onset. Where the straight path is free, that stretch holds the direct sound and every
+reflection whose path is at most 5 ms (1.7 m) longer: in rooms of a few metres, the walls beside
+the listener and the source. Each arrives from its own direction, so the head shadows each its own
+way, and the stretch's ILD is their energy-weighted mix. A law of the straight direction alone
+(:func:`avgs.acoustics.interaural.ild_law`), fitted and scored on the simulator's own responses in
+sight of the source, is 1.2-2.5 dB off; the direct sound and the walls' first-order reflections,
+each given the law at its own direction, 0.6-1.1 dB (six presets, their walls from scene.json,
+held-out sources). The floor's and the ceiling's reflections come from the straight path's own
+azimuth: they change nothing here.
+
+- :func:`find_walls`: the walls in G_a's points, as vertical planes ``[P, 3]`` (a unit normal in
+  the floor plan and its offset, ``n . (x, y) = d``) found by RANSAC (open3d's ``segment_plane``);
+  planes within :data:`MERGE_M` and :data:`MERGE_DEG` of a larger one are its other face.
+- :func:`wall_reflections`: for a batch of poses, each wall's first-order image source, where its
+  reflection point is, and whether the reflection happens: the points say there is a wall at that
+  point (at least :data:`SURFACE_POINTS` of them within :data:`SURFACE_RADIUS_M`: a door is a gap),
+  and neither leg is behind a wall (:mod:`avgs.acoustics.line_of_sight`'s test, the reflecting
+  wall's own points left out).
+- :func:`early_ild`: the stretch's ILD from the direct sound and the reflections inside the window,
+  each weighted by ``gain^2 / path^2`` (the direct sound's gain 1), its energy shared between the
+  ears by the law at its direction. :func:`fit_early_ild` fits the law and the walls' gain together
+  to the training responses in sight of the source.
+
+All lengths are in the caller's unit (the model's normalised one: the frame's scale converts).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from avgs.acoustics.interaural import ILD_HARMONICS, ild_law
+from avgs.acoustics.line_of_sight import points_on_path
+
+PLANE_THRESHOLD_M = 0.1
+"RANSAC's inlier distance (metres): a wall's Gaussians lie within about this of its plane."
+PLANE_ITERATIONS = 1000
+"RANSAC's iterations per plane."
+MAX_PLANES = 24
+"Planes taken out of the points, one after the other, walls or not (floor, ceiling, furniture)."
+MAX_WALLS = 16
+"Walls kept, the largest first."
+MIN_WALL_FRACTION = 0.01
+"A plane with fewer inliers than this share of the points (and fewer than :data:`MIN_WALL_POINTS`) ends the search."
+MIN_WALL_POINTS = 50
+"See :data:`MIN_WALL_FRACTION`."
+VERTICAL_NZ = 0.2
+"A plane is a wall when its normal's vertical part is under this (12 degrees from upright)."
+MERGE_M = 0.4
+"Parallel planes closer than this (metres) are one wall's two faces, or its Gaussians' spread."
+MERGE_DEG = 10.0
+"How far from parallel two planes may be to merge."
+SURFACE_RADIUS_M = 0.3
+"A reflection point is on a wall when G_a has :data:`SURFACE_POINTS` points within this (metres)."
+SURFACE_POINTS = 3
+"See :data:`SURFACE_RADIUS_M`."
+WALL_BAND_M = 0.3
+"A reflecting wall's own points (within this of its plane, metres) are left out of its legs' test."
+WINDOW_S = 0.005
+"Reflections whose path is at most this longer than the straight one (seconds, the early stretch) count."
+GAIN_START = 0.8
+"The walls' amplitude gain the fit starts from (a plasterboard wall keeps about 0.9 of the amplitude)."
+GAIN_MAX = 1.5
+"The fit's bound on that gain."
+
+
+def find_walls(points, unit: float, seed: int = 0) -> torch.Tensor:
+    """The walls in ``points [N, 3]`` (z up; ``unit``: the points' units per metre): ``[P, 3]`` float64
+    rows ``(n_x, n_y, d)`` with ``n_x x + n_y y = d`` on the wall and ``|n| = 1``, the largest first;
+    ``[0, 3]`` when there are none. Deterministic for a given ``seed``."""
+    import open3d as o3d
+
+    xyz = np.asarray(points.detach().double().cpu() if isinstance(points, torch.Tensor) else points, dtype=np.float64)
+    xyz = xyz[np.all(np.isfinite(xyz), axis=-1)]
+    least = max(MIN_WALL_POINTS, int(MIN_WALL_FRACTION * xyz.shape[0]))
+    found: list[tuple[int, np.ndarray]] = []  # (inliers, (n_x, n_y, d)) of each vertical plane
+    if xyz.shape[0] >= least:
+        o3d.utility.random.seed(int(seed))
+        rest = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
+        for _ in range(MAX_PLANES):
+            if len(rest.points) < least:
+                break
+            (a, b, c, d), inliers = rest.segment_plane(distance_threshold=PLANE_THRESHOLD_M * unit, ransac_n=3,
+                                                       num_iterations=PLANE_ITERATIONS)
+            if len(inliers) < least:
+                break
+            horizontal = math.hypot(a, b)
+            if abs(c) < VERTICAL_NZ * math.sqrt(a * a + b * b + c * c) and horizontal > 0:
+                # a x + b y + c z + d = 0 with c ~ 0: the floor plan's line n . (x, y) = -d / |(a, b)|
+                found.append((len(inliers), np.array([a / horizontal, b / horizontal, -d / horizontal])))
+            rest = rest.select_by_index(inliers, invert=True)
+    walls: list[np.ndarray] = []
+    cos_merge = math.cos(math.radians(MERGE_DEG))
+    for _, plane in sorted(found, key=lambda item: -item[0]):
+        for kept in walls:
+            dot = float(plane[:2] @ kept[:2])
+            if abs(dot) >= cos_merge and abs(plane[2] * math.copysign(1.0, dot) - kept[2]) < MERGE_M * unit:
+                break
+        else:
+            walls.append(plane)
+        if len(walls) >= MAX_WALLS:
+            break
+    return torch.tensor(np.array(walls).reshape(-1, 3), dtype=torch.float64)
+
+
+@dataclass(frozen=True)
+class WallReflections:
+    """The first-order reflections of a batch of poses off each wall."""
+
+    image: torch.Tensor  # [B, P, 3] the image source (the source mirrored in the wall's plane)
+    path: torch.Tensor  # [B, P] the reflection's path length (image source to listener)
+    happens: torch.Tensor  # [B, P] bool: both on the wall's side, a wall at the reflection point, both legs free
+
+
+@dataclass(frozen=True)
+class ReflectionTest:
+    """What :func:`wall_reflections` needs to tell a reflection that happens (the model's units)."""
+
+    surface_radius: float  # a wall at the reflection point: G_a's points within this ...
+    surface_points: int  # ... at least this many
+    wall_band: float  # the reflecting wall's own points (within this of its plane) are not on its legs
+    sight_radius: float  # the legs' test: line_of_sight.points_on_path's radius and margin ...
+    sight_margin: float
+    sight_blocked: float  # ... and the count from which a leg is behind a wall
+
+
+def wall_point_sets(points: torch.Tensor, walls: torch.Tensor, test: "ReflectionTest") -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """For each of ``walls [P, 3]``, two subsets of ``points [N, 3]``: those within ``test.surface_radius`` of
+    its plane (all that the reflection point's test can find) and those farther than ``test.wall_band`` (what
+    may stand on a leg of its reflection). The same for every pose: :func:`wall_reflections` takes them
+    from a caller that keeps them."""
+    points = points.detach()
+    n, d = walls[:, :2].to(points), walls[:, 2].to(points)
+    sets = []
+    for p in range(walls.shape[0]):
+        off = (points[:, :2] @ n[p] - d[p]).abs()  # [N] distance from the plane
+        sets.append((points[off <= test.surface_radius], points[off > test.wall_band]))
+    return sets
+
+
+def wall_reflections(listener: torch.Tensor, source: torch.Tensor, walls: torch.Tensor, points: torch.Tensor,
+                     test: ReflectionTest, longest: torch.Tensor | None = None,
+                     point_sets: list[tuple[torch.Tensor, torch.Tensor]] | None = None) -> WallReflections:
+    """Each wall's first-order reflection for poses ``listener, source [B, 3]`` (``walls [P, 3]`` of
+    :func:`find_walls`, ``points [N, 3]`` G_a's, all in one unit). ``longest [B]``: paths longer than
+    this cannot count (the early window), so their tests are skipped (``happens`` False). ``point_sets``:
+    :func:`wall_point_sets` of these points, walls and test, when the caller keeps them. The points' tests
+    run in the points' precision, the geometry in float64."""
+    dtype = torch.float64
+    listener, source = listener.to(dtype), source.to(dtype)
+    walls, points = walls.to(listener.device, dtype), points.detach().to(listener.device)
+    P = walls.shape[0]
+    n = torch.nn.functional.pad(walls[:, :2], (0, 1))  # [P, 3] the normals, z = 0
+    side_s = source @ n.T - walls[:, 2]  # [B, P] signed distances to each wall's plane
+    side_l = listener @ n.T - walls[:, 2]
+    image = source[:, None, :] - 2.0 * side_s[..., None] * n  # [B, P, 3]
+    path = torch.linalg.vector_norm(image - listener[:, None, :], dim=-1)  # [B, P]
+    happens = (side_s * side_l > 0) & (side_s.abs() > 0) & (side_l.abs() > 0)
+    if longest is not None:
+        happens &= path <= longest.to(dtype)[:, None]
+    if P == 0 or not bool(happens.any()):
+        return WallReflections(image, path, happens)
+    t = side_l / (side_l + side_s).where(happens, torch.ones_like(side_l))  # [B, P] along listener -> image
+    at = listener[:, None, :] + t[..., None] * (image - listener[:, None, :])  # [B, P, 3] the reflection point
+    b_idx, p_idx = torch.nonzero(happens, as_tuple=True)  # the candidates, tested one wall at a time
+    ok = torch.zeros(b_idx.shape[0], dtype=torch.bool, device=listener.device)
+    if point_sets is None:
+        point_sets = wall_point_sets(points, walls, test)
+    for p in torch.unique(p_idx).tolist():
+        on_wall, off_wall = point_sets[p]
+        sel = torch.nonzero(p_idx == p, as_tuple=True)[0]
+        x = at[b_idx[sel], p]  # [m, 3]
+        square = (on_wall[None] - x.to(on_wall.dtype)[:, None]).square().sum(-1)  # [m, n] to the wall's points
+        near = (square <= test.surface_radius**2).sum(-1) >= test.surface_points  # [m] a wall at the reflection point
+        sel, x = sel[near], x[near]
+        if sel.numel() == 0:
+            continue
+        if off_wall.shape[0] < test.sight_blocked:  # fewer points than block a path (one room): both legs free
+            ok[sel] = True
+            continue
+        m = sel.shape[0]  # both legs in one test: source -> x, then x -> listener
+        along = points_on_path(off_wall, torch.cat([source[b_idx[sel]], x]), torch.cat([x, listener[b_idx[sel]]]),
+                               test.sight_radius, test.sight_margin)  # [2 m]
+        ok[sel] = (along[:m] < test.sight_blocked) & (along[m:] < test.sight_blocked)
+    happens = happens.clone()
+    happens[b_idx, p_idx] = ok
+    return WallReflections(image, path, happens)
+
+
+def ear_shares(ild_db: torch.Tensor) -> torch.Tensor:
+    """The left ear's share ``[...]`` of an arrival's energy with an ILD of ``ild_db [...]`` (left over right)."""
+    return torch.sigmoid(ild_db * (math.log(10.0) / 10.0))
+
+
+def early_ild(theta: torch.Tensor, distance: torch.Tensor, reflected: torch.Tensor, path: torch.Tensor,
+              counts: torch.Tensor, law: torch.Tensor, gain) -> torch.Tensor:
+    """The early stretch's ILD ``[B]`` dB (left over right): the direct sound (direction ``theta [B]``
+    radians, path ``distance [B]``) and the reflections (directions ``reflected [B, P]``, paths ``path [B,
+    P]``) where ``counts [B, P]`` (bool), each with the energy ``gain^2 / path^2`` (the direct sound's gain
+    1) shared between the ears by :func:`~avgs.acoustics.interaural.ild_law` ``law [K]`` at its direction."""
+    law = law.to(theta)
+    weight = torch.cat([distance[:, None].clamp_min(1e-9) ** -2,
+                        torch.as_tensor(gain, dtype=theta.dtype, device=theta.device) ** 2
+                        * path.clamp_min(1e-9) ** -2 * counts.to(theta.dtype)], dim=-1)  # [B, 1 + P]
+    share = ear_shares(ild_law(torch.cat([theta[:, None], reflected], dim=-1), law))  # [B, 1 + P]
+    left, right = (weight * share).sum(-1), (weight * (1.0 - share)).sum(-1)
+    return 10.0 * torch.log10(left.clamp_min(1e-300) / right.clamp_min(1e-300))
+
+
+def fit_early_ild(theta, distance, reflected, path, counts, ild_db, start, harmonics: int = ILD_HARMONICS):
+    """Least-squares ``(law [harmonics], gain)`` of :func:`early_ild` for measured early ILDs ``ild_db [M]``
+    (dB) of poses with the arguments of :func:`early_ild` (``[M]``, ``[M, P]``), from the law ``start``;
+    a soft L1 loss (scale 1 dB) keeps the responses whose first 5 ms hold what no first-order reflection
+    explains from pulling it. None with fewer than ``4 * harmonics + 1`` finite measurements, no
+    reflection in the window, or a fit that is not finite."""
+    from scipy.optimize import least_squares
+
+    ild_db = torch.as_tensor(np.asarray(ild_db, dtype=np.float64))
+    keep = torch.isfinite(ild_db)
+    counts = torch.as_tensor(counts).bool()
+    if int(keep.sum()) < 4 * harmonics + 1 or not bool(counts[keep].any()):
+        return None
+    args = [torch.as_tensor(a).double()[keep] for a in (theta, distance, reflected, path)] + [counts[keep]]
+    target = ild_db[keep]
+
+    def residual(q: np.ndarray) -> np.ndarray:
+        q = torch.as_tensor(q)
+        return (early_ild(*args, law=q[:harmonics], gain=q[harmonics]) - target).numpy()
+
+    start = np.concatenate([np.asarray(start, dtype=np.float64).reshape(-1)[:harmonics], [GAIN_START]])
+    lower = np.concatenate([np.full(harmonics, -60.0), [0.0]])
+    upper = np.concatenate([np.full(harmonics, 60.0), [GAIN_MAX]])
+    try:
+        solution = least_squares(residual, np.clip(start, lower, upper), loss="soft_l1", f_scale=1.0, bounds=(lower, upper))
+    except ValueError:  # a residual that is not finite at the start
+        return None
+    if not np.all(np.isfinite(solution.x)):
+        return None
+    return solution.x[:harmonics].copy(), float(solution.x[harmonics])
