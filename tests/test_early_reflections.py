@@ -165,3 +165,14 @@ def test_the_directions_of_image_sources_follow_the_head():
     for yaw, sign in ((0.0, 1.0), (math.pi, -1.0)):
         theta = signed_direction(listener.expand(2, -1), torch.full((2,), yaw, dtype=torch.float64), found.image[0])
         assert sign * theta[0].item() < 0 < sign * theta[1].item()
+
+
+@pytest.mark.parametrize("backend", ["open3d", "numpy"])
+def test_both_plane_backends_find_the_same_walls(backend):
+    """Open3D's RANSAC and the NumPy one (machines without Open3D) find the box's four walls and the partition."""
+    rng = np.random.default_rng(6)
+    found = sorted_walls(er.find_walls(wall_points(rng, partition_x=3.0), unit=1.0, backend=backend))
+    assert [w[:2] for w in found] == [(0, 1), (0, 1), (1, 0), (1, 0), (1, 0)]
+    assert [w[2] for w in found] == pytest.approx([0.0, ROOM[1], 0.0, 3.06, ROOM[0]], abs=0.1)
+    with pytest.raises(ValueError, match="backend"):
+        er.find_walls(np.zeros((0, 3)), unit=1.0, backend="pcl")

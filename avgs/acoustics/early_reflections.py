@@ -12,7 +12,8 @@ held-out sources). The floor's and the ceiling's reflections come from the strai
 azimuth: they change nothing here.
 
 - :func:`find_walls`: the walls in G_a's points, as vertical planes ``[P, 3]`` (a unit normal in
-  the floor plan and its offset, ``n . (x, y) = d``) found by RANSAC (open3d's ``segment_plane``);
+  the floor plan and its offset, ``n . (x, y) = d``) found by RANSAC (Open3D's ``segment_plane``, or
+  the same rule in NumPy where Open3D is missing);
   planes within :data:`MERGE_M` and :data:`MERGE_DEG` of a larger one are its other face.
 - :func:`wall_reflections`: for a batch of poses, each wall's first-order image source, where its
   reflection point is, and whether the reflection happens: the points say there is a wall at that
@@ -70,31 +71,81 @@ GAIN_MAX = 1.5
 "The fit's bound on that gain."
 
 
-def find_walls(points, unit: float, seed: int = 0) -> torch.Tensor:
+def _open3d_planes(seed: int):
+    """Open3D's RANSAC (``segment_plane``) as ``segment(xyz [n, 3], threshold) -> ((a, b, c, d), inliers)``, or None
+    where Open3D cannot be imported."""
+    try:
+        import open3d as o3d
+    except ImportError:
+        return None
+    o3d.utility.random.seed(int(seed))
+
+    def segment(xyz: np.ndarray, threshold: float):
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
+        model, inliers = cloud.segment_plane(distance_threshold=threshold, ransac_n=3, num_iterations=PLANE_ITERATIONS)
+        return tuple(float(v) for v in model), np.asarray(inliers, dtype=np.int64)
+
+    return segment
+
+
+def _numpy_planes(seed: int):
+    """The same rule as :func:`_open3d_planes` in NumPy, for machines without Open3D (a minimal GPU image):
+    :data:`PLANE_ITERATIONS` planes through three random points, the one with the most points within the
+    threshold kept and refitted to them by least squares (its inliers taken again)."""
+    rng = np.random.default_rng(seed)
+
+    def segment(xyz: np.ndarray, threshold: float):
+        triples = xyz[rng.integers(0, xyz.shape[0], size=(PLANE_ITERATIONS, 3))]  # [I, 3, 3]
+        normal = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])  # [I, 3]
+        length = np.linalg.norm(normal, axis=-1)
+        normal = normal[length > 0] / length[length > 0, None]
+        offset = -(normal * triples[length > 0, 0]).sum(-1)  # [I']
+        counts = np.zeros(len(normal), dtype=np.int64)
+        for i in range(0, len(normal), 64):  # [64, n] distances at a time
+            counts[i : i + 64] = (np.abs(normal[i : i + 64] @ xyz.T + offset[i : i + 64, None]) <= threshold).sum(-1)
+        if len(normal) == 0:
+            return (0.0, 0.0, 1.0, 0.0), np.zeros(0, dtype=np.int64)
+        best = int(np.argmax(counts))
+        inliers = np.nonzero(np.abs(xyz @ normal[best] + offset[best]) <= threshold)[0]
+        centre = xyz[inliers].mean(0)
+        refined = np.linalg.svd(xyz[inliers] - centre, full_matrices=False)[2][-1]  # the smallest spread's direction
+        model = (*refined, -float(refined @ centre))
+        return model, np.nonzero(np.abs(xyz @ refined + model[3]) <= threshold)[0]
+
+    return segment
+
+
+def find_walls(points, unit: float, seed: int = 0, backend: str = "auto") -> torch.Tensor:
     """The walls in ``points [N, 3]`` (z up; ``unit``: the points' units per metre): ``[P, 3]`` float64
     rows ``(n_x, n_y, d)`` with ``n_x x + n_y y = d`` on the wall and ``|n| = 1``, the largest first;
-    ``[0, 3]`` when there are none. Deterministic for a given ``seed``."""
-    import open3d as o3d
-
+    ``[0, 3]`` when there are none. Deterministic for a given ``seed``. ``backend``: "open3d" (its RANSAC),
+    "numpy" (the same rule, for machines without Open3D; a test holds the two to the same walls) or "auto"
+    (Open3D where it imports)."""
+    if backend not in ("auto", "open3d", "numpy"):
+        raise ValueError(f"plane backend must be 'auto', 'open3d' or 'numpy', got {backend!r}")
+    segment = None if backend == "numpy" else _open3d_planes(seed)
+    if segment is None:
+        if backend == "open3d":
+            raise ImportError("find_walls(backend='open3d') needs Open3D (pip install open3d-cpu)")
+        segment = _numpy_planes(seed)
     xyz = np.asarray(points.detach().double().cpu() if isinstance(points, torch.Tensor) else points, dtype=np.float64)
     xyz = xyz[np.all(np.isfinite(xyz), axis=-1)]
     least = max(MIN_WALL_POINTS, int(MIN_WALL_FRACTION * xyz.shape[0]))
     found: list[tuple[int, np.ndarray]] = []  # (inliers, (n_x, n_y, d)) of each vertical plane
-    if xyz.shape[0] >= least:
-        o3d.utility.random.seed(int(seed))
-        rest = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
-        for _ in range(MAX_PLANES):
-            if len(rest.points) < least:
-                break
-            (a, b, c, d), inliers = rest.segment_plane(distance_threshold=PLANE_THRESHOLD_M * unit, ransac_n=3,
-                                                       num_iterations=PLANE_ITERATIONS)
-            if len(inliers) < least:
-                break
-            horizontal = math.hypot(a, b)
-            if abs(c) < VERTICAL_NZ * math.sqrt(a * a + b * b + c * c) and horizontal > 0:
-                # a x + b y + c z + d = 0 with c ~ 0: the floor plan's line n . (x, y) = -d / |(a, b)|
-                found.append((len(inliers), np.array([a / horizontal, b / horizontal, -d / horizontal])))
-            rest = rest.select_by_index(inliers, invert=True)
+    rest = xyz
+    for _ in range(MAX_PLANES):
+        if rest.shape[0] < least:
+            break
+        (a, b, c, d), inliers = segment(rest, PLANE_THRESHOLD_M * unit)
+        if len(inliers) < least:
+            break
+        horizontal = math.hypot(a, b)
+        if abs(c) < VERTICAL_NZ * math.sqrt(a * a + b * b + c * c) and horizontal > 0:
+            # a x + b y + c z + d = 0 with c ~ 0: the floor plan's line n . (x, y) = -d / |(a, b)|
+            found.append((len(inliers), np.array([a / horizontal, b / horizontal, -d / horizontal])))
+        keep = np.ones(rest.shape[0], dtype=bool)
+        keep[inliers] = False
+        rest = rest[keep]
     walls: list[np.ndarray] = []
     cos_merge = math.cos(math.radians(MERGE_DEG))
     for _, plane in sorted(found, key=lambda item: -item[0]):
