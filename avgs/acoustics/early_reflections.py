@@ -181,23 +181,23 @@ class ReflectionTest:
     sight_blocked: float  # ... and the count from which a leg is behind a wall
 
 
-def wall_point_sets(points: torch.Tensor, walls: torch.Tensor, test: "ReflectionTest") -> list[tuple[torch.Tensor, torch.Tensor]]:
-    """For each of ``walls [P, 3]``, two subsets of ``points [N, 3]``: those within ``test.surface_radius`` of
-    its plane (all that the reflection point's test can find) and those farther than ``test.wall_band`` (what
-    may stand on a leg of its reflection). The same for every pose: :func:`wall_reflections` takes them
-    from a caller that keeps them."""
+def wall_point_sets(points: torch.Tensor, walls: torch.Tensor, test: "ReflectionTest") -> tuple[list[torch.Tensor], torch.Tensor]:
+    """For each of ``walls [P, 3]``, the ``points [N, 3]`` within ``test.surface_radius`` of its plane (all that
+    the reflection point's test can find), and ``[N, P]`` bool: the points farther than ``test.wall_band``
+    from each plane (what may stand on a leg of its reflection). The same for every pose:
+    :func:`wall_reflections` takes them from a caller that keeps them."""
     points = points.detach()
-    n, d = walls[:, :2].to(points), walls[:, 2].to(points)
-    sets = []
-    for p in range(walls.shape[0]):
-        off = (points[:, :2] @ n[p] - d[p]).abs()  # [N] distance from the plane
-        sets.append((points[off <= test.surface_radius], points[off > test.wall_band]))
-    return sets
+    off = (points[:, :2] @ walls[:, :2].to(points).T - walls[:, 2].to(points)).abs()  # [N, P] from each plane
+    return [points[off[:, p] <= test.surface_radius] for p in range(walls.shape[0])], off > test.wall_band
+
+
+LEGS_AT_ONCE = 256
+"Legs tested in one product of :func:`~avgs.acoustics.line_of_sight.points_on_path` ([N, legs] at a time)."
 
 
 def wall_reflections(listener: torch.Tensor, source: torch.Tensor, walls: torch.Tensor, points: torch.Tensor,
                      test: ReflectionTest, longest: torch.Tensor | None = None,
-                     point_sets: list[tuple[torch.Tensor, torch.Tensor]] | None = None) -> WallReflections:
+                     point_sets: tuple[list[torch.Tensor], torch.Tensor] | None = None) -> WallReflections:
     """Each wall's first-order reflection for poses ``listener, source [B, 3]`` (``walls [P, 3]`` of
     :func:`find_walls`, ``points [N, 3]`` G_a's, all in one unit). ``longest [B]``: paths longer than
     this cannot count (the early window), so their tests are skipped (``happens`` False). ``point_sets``:
@@ -221,24 +221,19 @@ def wall_reflections(listener: torch.Tensor, source: torch.Tensor, walls: torch.
     at = listener[:, None, :] + t[..., None] * (image - listener[:, None, :])  # [B, P, 3] the reflection point
     b_idx, p_idx = torch.nonzero(happens, as_tuple=True)  # the candidates, tested one wall at a time
     ok = torch.zeros(b_idx.shape[0], dtype=torch.bool, device=listener.device)
-    if point_sets is None:
-        point_sets = wall_point_sets(points, walls, test)
-    for p in torch.unique(p_idx).tolist():
-        on_wall, off_wall = point_sets[p]
+    on_wall, off_wall = wall_point_sets(points, walls, test) if point_sets is None else point_sets
+    for p in torch.unique(p_idx).tolist():  # a wall at the reflection point: its own points near it
         sel = torch.nonzero(p_idx == p, as_tuple=True)[0]
-        x = at[b_idx[sel], p]  # [m, 3]
-        square = (on_wall[None] - x.to(on_wall.dtype)[:, None]).square().sum(-1)  # [m, n] to the wall's points
-        near = (square <= test.surface_radius**2).sum(-1) >= test.surface_points  # [m] a wall at the reflection point
-        sel, x = sel[near], x[near]
-        if sel.numel() == 0:
-            continue
-        if off_wall.shape[0] < test.sight_blocked:  # fewer points than block a path (one room): both legs free
-            ok[sel] = True
-            continue
-        m = sel.shape[0]  # both legs in one test: source -> x, then x -> listener
-        along = points_on_path(off_wall, torch.cat([source[b_idx[sel]], x]), torch.cat([x, listener[b_idx[sel]]]),
-                               test.sight_radius, test.sight_margin)  # [2 m]
-        ok[sel] = (along[:m] < test.sight_blocked) & (along[m:] < test.sight_blocked)
+        square = (on_wall[p][None] - at[b_idx[sel], p].to(points.dtype)[:, None]).square().sum(-1)  # [m, n]
+        ok[sel] = (square <= test.surface_radius**2).sum(-1) >= test.surface_points
+    legs = torch.nonzero(ok, as_tuple=True)[0]  # both legs free: source -> x and x -> listener, the wall's own points aside
+    if points.shape[0] >= test.sight_blocked:  # (fewer points than block a path: every leg is free)
+        for i in range(0, legs.shape[0], LEGS_AT_ONCE // 2):
+            c = legs[i : i + LEGS_AT_ONCE // 2]
+            x, m = at[b_idx[c], p_idx[c]], c.shape[0]
+            along = points_on_path(points, torch.cat([source[b_idx[c]], x]), torch.cat([x, listener[b_idx[c]]]),
+                                   test.sight_radius, test.sight_margin, keep=off_wall[:, p_idx[c].repeat(2)])  # [2 m]
+            ok[c] = (along[:m] < test.sight_blocked) & (along[m:] < test.sight_blocked)
     happens = happens.clone()
     happens[b_idx, p_idx] = ok
     return WallReflections(image, path, happens)

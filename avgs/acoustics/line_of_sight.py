@@ -34,10 +34,12 @@ MIN_ACCURACY = 0.8
 "The least balanced accuracy on the training pairs for a fitted threshold to be used."
 
 
-def points_on_path(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor, radius: float, margin: float) -> torch.Tensor:
+def points_on_path(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor, radius: float, margin: float,
+                   keep: torch.Tensor | None = None) -> torch.Tensor:
     """How many of ``points [P, 3]`` lie within ``radius`` of each segment ``a [B, 3]`` -> ``b [B, 3]``,
     not within ``margin`` of its ends (all in one unit): ``[B]`` int64. In ``points``' precision, by
-    matrix products (the explorer asks once per pose of a drag)."""
+    matrix products (the explorer asks once per pose of a drag). ``keep [P, B]`` (bool): only those
+    points count for each segment."""
     a, b = a.to(points.dtype), b.to(points.dtype)
     ab = b - a  # [B, 3]
     length = torch.linalg.vector_norm(ab, dim=-1).clamp_min(1e-12)  # [B]
@@ -46,7 +48,8 @@ def points_on_path(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor, radiu
     square = (points.square().sum(-1, keepdim=True) - 2.0 * points @ a.T + a.square().sum(-1))  # [P, B] |p - a|^2
     off = square - along.square()  # [P, B] squared distance from each line
     inner = (along > margin) & (along < length - margin)
-    return ((off < radius * radius) & inner).sum(0)
+    near = (off < radius * radius) & inner
+    return (near if keep is None else near & keep).sum(0)
 
 
 def wall_radius(points: torch.Tensor, radius: float) -> float:
