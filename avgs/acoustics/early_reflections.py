@@ -6,15 +6,16 @@ reflection whose path is at most 5 ms (1.7 m) longer: in rooms of a few metres, 
 the listener and the source. Each arrives from its own direction, so the head shadows each its own
 way, and the stretch's ILD is their energy-weighted mix. A law of the straight direction alone
 (:func:`avgs.acoustics.interaural.ild_law`), fitted and scored on the simulator's own responses in
-sight of the source, is 1.2-2.5 dB off; the direct sound and the walls' first-order reflections,
-each given the law at its own direction, 0.6-1.1 dB (six presets, their walls from scene.json,
-held-out sources). The floor's and the ceiling's reflections come from the straight path's own
-azimuth: they change nothing here.
+sight of the source, is 1.4-2.0 dB off on the val pairs and 1.0-2.5 dB at held-out sources; the
+direct sound and the walls' first-order reflections, each given the law at its own direction,
+0.7-1.1 and 0.7-1.0 dB (six presets, their walls from scene.json: scripts/early_ild_surfaces.py).
+The floor's and the ceiling's reflections come from the straight path's own azimuth: they change
+nothing here.
 
 - :func:`find_walls`: the walls in G_a's points, as vertical planes ``[P, 3]`` (a unit normal in
-  the floor plan and its offset, ``n . (x, y) = d``) found by RANSAC (Open3D's ``segment_plane``, or
-  the same rule in NumPy where Open3D is missing);
-  planes within :data:`MERGE_M` and :data:`MERGE_DEG` of a larger one are its other face.
+  the floor plan and its offset, ``n . (x, y) = d``) found by RANSAC (Open3D's ``segment_plane`` rule
+  in NumPy, seeded: Open3D's own varies with its threads); planes within :data:`MERGE_M` and
+  :data:`MERGE_DEG` of a larger one are its other face.
 - :func:`wall_reflections`: for a batch of poses, each wall's first-order image source, where its
   reflection point is, and whether the reflection happens: the points say there is a wall at that
   point (at least :data:`SURFACE_POINTS` of them within :data:`SURFACE_RADIUS_M`: a door is a gap),
@@ -89,7 +90,8 @@ def _open3d_planes(seed: int):
 
 
 def _numpy_planes(seed: int):
-    """The same rule as :func:`_open3d_planes` in NumPy, for machines without Open3D (a minimal GPU image):
+    """The same rule as :func:`_open3d_planes` in NumPy, repeatable for a given seed (and on machines without
+    Open3D, such as a minimal GPU image):
     :data:`PLANE_ITERATIONS` planes through three random points, the one with the most points within the
     threshold kept and refitted to them by least squares (its inliers taken again)."""
     rng = np.random.default_rng(seed)
@@ -115,19 +117,18 @@ def _numpy_planes(seed: int):
     return segment
 
 
-def find_walls(points, unit: float, seed: int = 0, backend: str = "auto") -> torch.Tensor:
+def find_walls(points, unit: float, seed: int = 0, backend: str = "numpy") -> torch.Tensor:
     """The walls in ``points [N, 3]`` (z up; ``unit``: the points' units per metre): ``[P, 3]`` float64
     rows ``(n_x, n_y, d)`` with ``n_x x + n_y y = d`` on the wall and ``|n| = 1``, the largest first;
-    ``[0, 3]`` when there are none. Deterministic for a given ``seed``. ``backend``: "open3d" (its RANSAC),
-    "numpy" (the same rule, for machines without Open3D; a test holds the two to the same walls) or "auto"
-    (Open3D where it imports)."""
-    if backend not in ("auto", "open3d", "numpy"):
-        raise ValueError(f"plane backend must be 'auto', 'open3d' or 'numpy', got {backend!r}")
-    segment = None if backend == "numpy" else _open3d_planes(seed)
+    ``[0, 3]`` when there are none. ``backend``: "numpy" (the default: the same for a given ``seed``, as a
+    training run and its resumed copy need), or "open3d" (Open3D's RANSAC: the same walls, a test holds
+    the two together, but its threads draw its samples in an order that varies from run to run, and a
+    wall's normal with it by a few thousandths)."""
+    if backend not in ("open3d", "numpy"):
+        raise ValueError(f"plane backend must be 'open3d' or 'numpy', got {backend!r}")
+    segment = _numpy_planes(seed) if backend == "numpy" else _open3d_planes(seed)
     if segment is None:
-        if backend == "open3d":
-            raise ImportError("find_walls(backend='open3d') needs Open3D (pip install open3d-cpu)")
-        segment = _numpy_planes(seed)
+        raise ImportError("find_walls(backend='open3d') needs Open3D (pip install open3d-cpu)")
     xyz = np.asarray(points.detach().double().cpu() if isinstance(points, torch.Tensor) else points, dtype=np.float64)
     xyz = xyz[np.all(np.isfinite(xyz), axis=-1)]
     least = max(MIN_WALL_POINTS, int(MIN_WALL_FRACTION * xyz.shape[0]))

@@ -104,7 +104,7 @@ WALL_BUFFERS = ("wall_loss", "wall_radius", "wall_margin", "wall_unit")
 
 ILD_BUFFERS = ("ild_law", "sight_radius", "sight_margin", "sight_blocked", "local_at", "local_residual", "local_scale",
                "reflecting_walls", "reflection_gain", "reflection_radius", "reflection_points", "reflection_band")
-"The direct sound's ILD, fitted at training (direct_ild, ild_local): a checkpoint without them has none."
+"The direct sound's ILD, fitted at training (direct_ild, ild_local, early_reflections): a checkpoint without them has none."
 
 
 def orientation_feature(theta: torch.Tensor, yaw: torch.Tensor, harmonics: int) -> torch.Tensor:

@@ -173,14 +173,18 @@ class RIRModel(AVGSModel):
         ild = None
         blocked = torch.zeros_like(distance, dtype=torch.bool)  # [B] the straight path behind a wall
         if law is not None:  # the head shadow where the straight path is free; behind a wall (NaN) B's ILD
-            ild = self.early_ild(listener, yaw, source, theta, distance)
-            if getattr(b, "local_at", None) is not None:  # and the room's part near the training responses
-                where = local_features(listener.double(), source.double(), theta) / b.local_scale.double()
-                ild = ild + local_correction(where, b.local_at.double(), b.local_residual.double())
             along = points_on_path(self.points.X.detach(), listener, source,
                                    float(b.sight_radius), float(b.sight_margin))
             blocked = along >= float(b.sight_blocked)
-            ild = torch.where(blocked, torch.full_like(ild, float("nan")), ild)
+            ild = torch.full_like(distance, float("nan"))
+            free = torch.nonzero(~blocked, as_tuple=True)[0]
+            if free.numel():
+                at = (listener[free], yaw[free], source[free], theta[free], distance[free])
+                given = self.early_ild(*at)
+                if getattr(b, "local_at", None) is not None:  # and the room's part near the training responses
+                    where = local_features(at[0].double(), at[2].double(), at[3]) / b.local_scale.double()
+                    given = given + local_correction(where, b.local_at.double(), b.local_residual.double())
+                ild[free] = given
         energy = None
         level = getattr(b, "level_law", None)
         if level is not None:  # 1 / d^2 and the head's gain where the straight path is free; behind a wall B's
@@ -189,7 +193,6 @@ class RIRModel(AVGSModel):
         itd = getattr(b, "itd_law", None)  # the fitted head's law, else Woodworth's sphere with the fitted scale
         delays = ear_delays(theta, float(scale)) if itd is None else lagging_ear(itd_law(theta, itd.double()))  # [B, 2] s
         return DirectSound(distance / self.rir.sound_speed, delays, ild, energy)
-
 
     def early_ild(self, listener: torch.Tensor, yaw: torch.Tensor, source: torch.Tensor, theta: torch.Tensor,
                   distance: torch.Tensor) -> torch.Tensor:

@@ -420,7 +420,7 @@ class ImpulseResponseTraining:
         reflected = signed_direction(listener[:, None].expand(-1, P, -1), yaw[:, None].expand(-1, P), found.image)  # [M, P]
         sight = torch.as_tensor(self._in_sight)
         fit = er.fit_early_ild(self._theta[sight], distance[sight], reflected[sight], found.path[sight], found.happens[sight],
-                               self._ilds[self._in_sight], b.ild_law.double().numpy()) if P else None
+                               self._ilds[self._in_sight], b.ild_law.detach().double().cpu().numpy()) if P else None
         record = {"stage": "reflections", "event": "fit", "walls": P, "pairs_in_sight": int(sight.sum()),
                   "reflections_per_pair": float(found.happens[sight].double().sum(-1).mean()) if P else 0.0}
         if fit is not None:
