@@ -94,7 +94,7 @@ def predict(q: np.ndarray, data: list, kinds) -> np.ndarray:
     for _, items in data:
         left = right = 0.0
         for k, (dt, azimuth, amplitude, kind) in enumerate(items):
-            if k and (kinds is None or kind not in kinds or dt > WINDOW_S):
+            if k and ((kinds is not None and kind not in kinds) or dt > WINDOW_S):
                 continue
             ild = sum(c * math.sin((m + 1) * azimuth) for m, c in enumerate(law))
             weight = amplitude**2 * (1.0 if k == 0 else gain**2)
