@@ -36,8 +36,7 @@ def main(scene_dir: str, ckpt_path: str) -> None:
     print(f"{scene_dir}: {len(points)} points, {walls.shape[0]} walls (n_x, n_y, d m):")
     for w in walls.tolist():
         print(f"  {w[0]:+.2f} {w[1]:+.2f} {w[2] / scale:+.2f}")
-    test = er.ReflectionTest(er.SURFACE_RADIUS_M * scale, er.SURFACE_POINTS, er.WALL_BAND_M * scale,
-                             float(b["sight_radius"]), float(b["sight_margin"]), float(b["sight_blocked"]))
+    test = er.ReflectionTest.at_scale(scale, b["sight_radius"], b["sight_margin"], b["sight_blocked"])
     scene = RIRScene(scene_dir)
 
     def split(name: str) -> dict:
@@ -48,8 +47,7 @@ def main(scene_dir: str, ckpt_path: str) -> None:
         distance = torch.linalg.vector_norm(src - lis, dim=-1)
         onsets = np.array([spatial.onset(h) for h in r.rir]) / scene.sample_rate
         found = er.wall_reflections(lis, src, walls, points, test, longest=distance + er.WINDOW_S * c)
-        P = walls.shape[0]
-        reflected = signed_direction(lis[:, None].expand(-1, P, -1), yaw[:, None].expand(-1, P), found.image)
+        reflected = er.image_directions(lis, yaw, found.image)
         return {"theta": theta, "distance": distance, "reflected": reflected, "path": found.path, "happens": found.happens,
                 "ild": np.array([spatial.early_ild(h, scene.sample_rate) for h in r.rir]),
                 "sight": spatial.in_sight(onsets, distance.numpy(), c),

@@ -18,7 +18,7 @@ import warnings
 
 import torch
 
-from avgs.acoustics.rir_binauralizer import ILD_BUFFERS, RIRBinauralizer
+from avgs.acoustics.rir_binauralizer import REFLECTION_BUFFERS, RIRBinauralizer
 from avgs.io.checkpoint import config_of, load_checkpoint, save_checkpoint
 from avgs.render.renderer import SceneRenderer
 from avgs.train.impulse_responses import ImpulseResponseTraining
@@ -63,15 +63,15 @@ def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, ref
     else:
         data["binauralizer"].pop("level_law", None)
     data["config"]["rir"]["early_reflections"] = reflections
-    for key in ILD_BUFFERS[ILD_BUFFERS.index("reflecting_walls"):]:
+    for key in REFLECTION_BUFFERS:
         data["binauralizer"].pop(key, None)
     if reflections:  # the walls from the checkpoint's points, as training finds them once G_a is built
         empty = RIRBinauralizer(config_of(data).rir, None, 1, 1, 1.0).state_dict()
-        data["binauralizer"].update({k: empty[k] for k in ILD_BUFFERS[ILD_BUFFERS.index("reflecting_walls"):]})
+        data["binauralizer"].update({k: empty[k] for k in REFLECTION_BUFFERS})
         renderer = SceneRenderer(data, path=ckpt_path)
         task.fit_reflections(renderer.model)
         state = renderer.model.binauralizer.state_dict()
-        for key in ("ild_law", "local_residual") + ILD_BUFFERS[ILD_BUFFERS.index("reflecting_walls"):]:
+        for key in ("ild_law", "local_residual") + REFLECTION_BUFFERS:
             if key in state:
                 data["binauralizer"][key] = state[key].detach().float().cpu().clone()
         walls = int((state["reflecting_walls"][:, :2].abs().sum(-1) > 0).sum())

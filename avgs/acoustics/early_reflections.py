@@ -39,6 +39,7 @@ import torch
 
 from avgs.acoustics.interaural import ILD_HARMONICS, ild_law
 from avgs.acoustics.line_of_sight import points_on_path
+from avgs.data.frame import signed_direction
 
 PLANE_THRESHOLD_M = 0.1
 "RANSAC's inlier distance (metres): a wall's Gaussians lie within about this of its plane."
@@ -181,6 +182,12 @@ class ReflectionTest:
     sight_margin: float
     sight_blocked: float  # ... and the count from which a leg is behind a wall
 
+    @classmethod
+    def at_scale(cls, unit: float, sight_radius: float, sight_margin: float, sight_blocked: float) -> "ReflectionTest":
+        """This module's thresholds in a model's units (``unit`` per metre), with the straight path's fitted test."""
+        return cls(SURFACE_RADIUS_M * unit, SURFACE_POINTS, WALL_BAND_M * unit, float(sight_radius), float(sight_margin),
+                   float(sight_blocked))
+
 
 def wall_point_sets(points: torch.Tensor, walls: torch.Tensor, test: "ReflectionTest") -> tuple[list[torch.Tensor], torch.Tensor]:
     """For each of ``walls [P, 3]``, the ``points [N, 3]`` within ``test.surface_radius`` of its plane (all that
@@ -238,6 +245,13 @@ def wall_reflections(listener: torch.Tensor, source: torch.Tensor, walls: torch.
     happens = happens.clone()
     happens[b_idx, p_idx] = ok
     return WallReflections(image, path, happens)
+
+
+def image_directions(listener: torch.Tensor, yaw: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+    """Each image source's direction ``[B, P]`` radians from listeners ``[B, 3]`` facing ``yaw [B]`` (radians),
+    for ``image [B, P, 3]`` (:class:`WallReflections`): :func:`~avgs.data.frame.signed_direction`'s convention."""
+    P = image.shape[1]
+    return signed_direction(listener.to(image)[:, None].expand(-1, P, -1), yaw.to(image)[:, None].expand(-1, P), image)
 
 
 def ear_shares(ild_db: torch.Tensor) -> torch.Tensor:

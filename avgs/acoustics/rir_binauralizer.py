@@ -102,8 +102,11 @@ LEVEL_BUFFERS = ("level_law",)
 WALL_BUFFERS = ("wall_loss", "wall_radius", "wall_margin", "wall_unit")
 "B's wall term, fitted at training (direct_sound, wall_loss): a checkpoint without them has none."
 
-ILD_BUFFERS = ("ild_law", "sight_radius", "sight_margin", "sight_blocked", "local_at", "local_residual", "local_scale",
-               "reflecting_walls", "reflection_gain", "reflection_radius", "reflection_points", "reflection_band")
+REFLECTION_BUFFERS = ("reflecting_walls", "reflection_gain", "reflection_radius", "reflection_points", "reflection_band")
+"The walls' first reflections in the early ILD, fitted at training (direct_ild, early_reflections)."
+
+ILD_BUFFERS = ("ild_law", "sight_radius", "sight_margin", "sight_blocked", "local_at", "local_residual",
+               "local_scale") + REFLECTION_BUFFERS
 "The direct sound's ILD, fitted at training (direct_ild, ild_local, early_reflections): a checkpoint without them has none."
 
 

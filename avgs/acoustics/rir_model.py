@@ -31,7 +31,8 @@ import torch
 from torch import nn
 
 from avgs import dsp
-from avgs.acoustics.early_reflections import WINDOW_S, ReflectionTest, early_ild, wall_point_sets, wall_reflections
+from avgs.acoustics.early_reflections import (WINDOW_S, ReflectionTest, early_ild, image_directions, wall_point_sets,
+                                              wall_reflections)
 from avgs.acoustics.field import AcousticField
 from avgs.acoustics.interaural import (direct_level_db, ear_delays, ild_law, itd_law, lagging_ear, local_correction,
                                       local_features)
@@ -215,9 +216,7 @@ class RIRModel(AVGSModel):
             self._wall_points = (key, wall_point_sets(points, walls, test))
         found = wall_reflections(listener.detach(), source.detach(), walls, points, test,
                                  longest=distance + WINDOW_S * self.rir.sound_speed, point_sets=self._wall_points[1])
-        P = walls.shape[0]
-        reflected = signed_direction(listener.double()[:, None].expand(-1, P, -1), yaw.double()[:, None].expand(-1, P),
-                                     found.image)  # [B, P] each image source's direction
+        reflected = image_directions(listener, yaw, found.image)  # [B, P]
         return early_ild(theta, distance, reflected, found.path, found.happens, law, float(b.reflection_gain))
 
 

@@ -409,15 +409,14 @@ class ImpulseResponseTraining:
         b, scale, train = model.binauralizer, float(self.scene.frame.scale), self.train_set
         points = model.points.X.detach().double().cpu()
         walls = er.find_walls(points, scale, seed=self._seed)  # [P, 3]
-        test = er.ReflectionTest(er.SURFACE_RADIUS_M * scale, er.SURFACE_POINTS, er.WALL_BAND_M * scale,
-                                 float(b.sight_radius), float(b.sight_margin), float(b.sight_blocked))
+        test = er.ReflectionTest.at_scale(scale, b.sight_radius, b.sight_margin, b.sight_blocked)
         listener = torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64)
         source = torch.as_tensor(np.asarray(train.source), dtype=torch.float64)
         yaw = torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64)))
         distance = torch.linalg.vector_norm(source - listener, dim=-1)  # [M]
         found = er.wall_reflections(listener, source, walls, points, test, longest=distance + er.WINDOW_S * model.rir.sound_speed)
         P = walls.shape[0]
-        reflected = signed_direction(listener[:, None].expand(-1, P, -1), yaw[:, None].expand(-1, P), found.image)  # [M, P]
+        reflected = er.image_directions(listener, yaw, found.image)  # [M, P]
         sight = torch.as_tensor(self._in_sight)
         fit = er.fit_early_ild(self._theta[sight], distance[sight], reflected[sight], found.path[sight], found.happens[sight],
                                self._ilds[self._in_sight], b.ild_law.detach().double().cpu().numpy()) if P else None
