@@ -227,6 +227,8 @@ class RIRConfig:
     "Entries of that correction (training responses in sight; set at training, stored with the checkpoint; 0: the law alone)."
     early_reflections: bool = True
     "With direct_ild: the first 5 ms's ILD from the direct sound and the walls' first-order reflections that arrive within them, each given the law at its own direction (avgs.acoustics.early_reflections: walls found in G_a's points by RANSAC, a reflection counted where the points put a wall at its reflection point and both its legs are free), the law and the walls' gain fitted together to the training responses in sight of the source, not from the law of the straight direction alone: the reflections off the walls beside the head arrive from other directions (six presets, three seeds, val / held out: early ILD 1.65 / 1.62 -> 1.17 / 1.06 dB; docs/results.md). No wall found: the law alone."
+    reflected_arrival: bool = True
+    "With early_reflections: behind a wall (the straight path's test), the first sound arrives along the shortest first-order reflection off the walls found whose legs are free, at its path / c and with the ITD of its direction (avgs.acoustics.early_reflections.first_reflection), where the training pairs behind a wall agree (their early ITDs closer to its direction's than to the straight line's; the log's `arrival` record); else, and with this off, at distance / c with the straight direction's ITD. A simulator without diffraction or transmission, as a real room's doors, brings the first sound behind a wall around through a reflection (two_rooms, seed 3, held out: lateralisation 75 -> 83 %, ITD 62 -> 54 us; docs/results.md)."
     direct_level: bool = True
     "With direct_sound: the direct sound's energy from geometry where the straight path is free, 1 / d^2 times a gain of the direction (avgs.acoustics.interaural.direct_level_db) fitted to the training responses in sight of the source, taken out of B's first window, which holds it smeared, not from B's first frames alone, which a network of the distance extrapolates near the source (the level against distance, max error over 0.5-5 m, three seeds: u_room 3.8-4.4 -> 1.8-2.2 dB, l_room 1.6-2.7 -> 0.4-0.6 dB; docs/rir_level_distance.md)."
     wall_loss: bool = True
@@ -402,7 +404,7 @@ ADDED_LATER = {
     "acoustic": {"reverb_tail": False, "position_frequencies": 10, "direction_every_layer": False, "interaural_delay": False},
     "gaussians": {"cpu_max_pixels": 0},
     "rir": {"distance_slope": False, "distance_knee": False, "energy_weight": 0.0, "decay_weight": 0.0, "direct_sound": False,
-            "direct_ild": False, "direct_itd": False, "ild_local": False, "ild_table": 0, "early_reflections": False,
+            "direct_ild": False, "direct_itd": False, "ild_local": False, "ild_table": 0, "early_reflections": False, "reflected_arrival": False,
             "direct_level": False, "wall_loss": False, "passes": 0.0,
             "least_iterations": 3000},
 }

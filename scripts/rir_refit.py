@@ -5,7 +5,8 @@ law refitted with their gain), fitted from the scene's
 training responses exactly as training does (:meth:`avgs.train.impulse_responses.ImpulseResponseTraining.configure`
 and ``fit_reflections``); the weights and every other buffer stay (no fit depends on them). For
 checkpoints trained before these existed (the tables of docs/results.md, the bundled demo).
-``--no-level``: without the level law; ``--no-reflections``: without the walls' reflections; ``--local``: with
+``--no-level``: without the level law; ``--no-reflections``: without the walls' reflections; ``--no-arrival``:
+without the first reflection's arrival behind a wall (``RIRConfig.reflected_arrival``); ``--local``: with
 the local correction (off by default since the walls' reflections: ``RIRConfig.ild_local``).
 
     python scripts/rir_refit.py data/rir/two_rooms runs/two_rooms.ckpt runs/two_rooms.refit.ckpt
@@ -30,10 +31,10 @@ class _Quiet:
 
 
 def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, reflections: bool = True,
-          local: bool = False) -> str:
+          local: bool = False, arrival: bool = True) -> str:
     """Write ``out_path``: ``ckpt_path`` with the level law (``level``), the walls' reflections
-    (``reflections``) and the early ILD's local correction (``local``) fitted on ``scene_dir``, each left
-    out when not asked for; what was added, in words."""
+    (``reflections``; with ``arrival`` also behind a wall) and the early ILD's local correction (``local``)
+    fitted on ``scene_dir``, each left out when not asked for; what was added, in words."""
     data = load_checkpoint(ckpt_path)
     cfg = config_of(data)
     if not (cfg.rir.direct_sound and cfg.rir.direct_ild):
@@ -63,11 +64,12 @@ def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, ref
     else:
         data["binauralizer"].pop("level_law", None)
     data["config"]["rir"]["early_reflections"] = reflections
+    data["config"]["rir"]["reflected_arrival"] = reflections and arrival
     for key in REFLECTION_BUFFERS:
         data["binauralizer"].pop(key, None)
     if reflections:  # the walls from the checkpoint's points, as training finds them once G_a is built
         empty = RIRBinauralizer(config_of(data).rir, None, 1, 1, 1.0).state_dict()
-        data["binauralizer"].update({k: empty[k] for k in REFLECTION_BUFFERS})
+        data["binauralizer"].update({k: empty[k] for k in REFLECTION_BUFFERS if k in empty})
         renderer = SceneRenderer(data, path=ckpt_path)
         task.fit_reflections(renderer.model)
         state = renderer.model.binauralizer.state_dict()
@@ -76,16 +78,20 @@ def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, ref
                 data["binauralizer"][key] = state[key].detach().float().cpu().clone()
         walls = int((state["reflecting_walls"][:, :2].abs().sum(-1) > 0).sum())
         said += f", {walls} walls' reflections (gain {float(state['reflection_gain']):.2f})"
+        if "reflected_arrival" in state:
+            direction, delay = (float(v) > 0.5 for v in state["reflected_arrival"])
+            said += (f"; behind a wall the {'first reflection' if direction else 'straight line'}'s direction and "
+                     f"the {'first reflection' if delay else 'straight line'}'s delay")
     law = " / ".join(f"{float(c):.2f}" for c in data["binauralizer"]["ild_law"])
     save_checkpoint(data, out_path)
     return f"the ILD law {law} dB" + said
 
 
 if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a not in ("--no-level", "--no-reflections", "--local")]
+    args = [a for a in sys.argv[1:] if a not in ("--no-level", "--no-reflections", "--no-arrival", "--local")]
     if len(args) != 3:
         print(__doc__)
         sys.exit(2)
     said = refit(*args, level="--no-level" not in sys.argv, reflections="--no-reflections" not in sys.argv,
-                 local="--local" in sys.argv)
+                 local="--local" in sys.argv, arrival="--no-arrival" not in sys.argv)
     print(f"{args[2]}: {said}")

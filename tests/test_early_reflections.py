@@ -176,3 +176,37 @@ def test_both_plane_backends_find_the_same_walls(backend):
     assert [w[2] for w in found] == pytest.approx([0.0, ROOM[1], 0.0, 3.06, ROOM[0]], abs=0.1)
     with pytest.raises(ValueError, match="backend"):
         er.find_walls(np.zeros((0, 3)), unit=1.0, backend="pcl")
+
+
+def test_behind_a_partition_the_first_reflection_is_the_one_that_passes_the_opening():
+    """A partition across x = 3 for y < 2 (open above): a listener and a source on either side at y = 1.5. The
+    straight path and three walls' reflections cross the partition; the y = 4 wall's passes the opening, so
+    it is the first sound, with its image source and path in closed form. In the open half (y = 3) the
+    same wall's is the shortest of all four."""
+    rng = np.random.default_rng(7)
+    points = torch.as_tensor(wall_points(rng, partition_x=3.0))
+    listener = torch.tensor([[2.0, 1.5, 1.5], [2.0, 3.0, 1.5]], dtype=torch.float64)
+    source = torch.tensor([[5.5, 1.5, 1.5], [5.5, 3.0, 1.5]], dtype=torch.float64)
+    found = er.wall_reflections(listener[:1], source[:1], BOX_WALLS, points, TEST)
+    assert found.happens[0].tolist() == [False, False, False, True]  # x = 0, x = 6, y = 0 cross the partition
+    first = er.first_reflection(listener, source, BOX_WALLS, points, TEST)
+    assert first.found.tolist() == [True, True]
+    assert first.image[0].tolist() == pytest.approx([5.5, 2 * ROOM[1] - 1.5, 1.5])  # mirrored in y = 4
+    assert first.path[0].item() == pytest.approx(math.hypot(3.5, 5.0))
+    assert first.image[1].tolist() == pytest.approx([5.5, 2 * ROOM[1] - 3.0, 1.5])
+    assert first.path[1].item() == pytest.approx(math.hypot(3.5, 2.0))
+
+    none = er.first_reflection(listener[:1], source[:1], BOX_WALLS[:3], points, TEST)  # without the y = 4 wall
+    assert none.found.tolist() == [False]
+    assert none.image[0].tolist() == source[0].tolist()
+    assert none.path[0].item() == pytest.approx(3.5)  # the straight line's
+
+
+def test_the_first_reflection_is_chosen_where_it_tells_the_measured_itds_better():
+    measured = np.array([300e-6, -200e-6, 450e-6, -500e-6, 100e-6, 250e-6, -350e-6, 400e-6, float("nan")])
+    near = measured + 20e-6  # 20 us off each
+    far = -measured  # the wrong side
+    used, e_straight, e_reflected = er.reflection_first(measured, straight=far, reflected=near)
+    assert used and e_reflected == pytest.approx(20e-6) and e_straight == pytest.approx(2 * 300e-6)
+    assert not er.reflection_first(measured, straight=near, reflected=far)[0]
+    assert er.reflection_first(measured[:7], straight=far[:7], reflected=near[:7]) == (False, None, None)  # too few

@@ -485,3 +485,47 @@ def test_training_finds_the_walls_and_their_reflections_explain_the_early_ild(re
     law = fit_ild_law(theta.numpy(), measured)
     alone = ild_law(theta, torch.as_tensor(law)).numpy()
     assert np.median(np.abs(given - measured)) < 0.6 * np.median(np.abs(alone - measured))  # 0.7 against 1.8 dB
+
+
+def test_behind_a_wall_the_first_sound_comes_by_the_reflection_that_passes_the_opening(renderer):
+    """A partition at x = 3 (y < 2, open above) between a listener facing +x and a source straight ahead:
+    with ``reflected_arrival`` the direct sound arrives along the y = 4 wall's reflection, which passes the
+    opening (its path / c, the ITD of its image source on the left: the right ear later), or with its
+    direction alone; off, along the straight line with no ITD. The quick room's own training has no pair behind a wall: its fit says so and
+    keeps the straight line."""
+    import copy
+
+    assert renderer.config.rir.reflected_arrival and renderer.model.binauralizer.reflected_arrival.tolist() == [0.0, 0.0]
+    model = copy.deepcopy(renderer.model)
+    b = model.binauralizer
+    u = np.arange(0.0, 6.05, 0.1)
+    yy, zz = np.meshgrid(u[u <= 2.0], u[u <= 2.5])
+    partition = [np.stack([np.full(yy.size, x), yy.ravel(), zz.ravel()], -1) for x in (3.0, 3.12)]
+    xx, zz = np.meshgrid(u, u[u <= 2.5])
+    wall = np.stack([xx.ravel(), np.full(xx.size, 4.0), zz.ravel()], -1)  # the y = 4 wall
+    model.points.X.data = torch.as_tensor(np.concatenate(partition + [wall]), dtype=model.points.X.dtype)
+    with torch.no_grad():
+        for name, value in (("sight_radius", 0.2), ("sight_margin", 0.3), ("sight_blocked", 20.0), ("reflection_radius", 0.3),
+                            ("reflection_points", 3.0), ("reflection_band", 0.3), ("reflected_arrival", 1.0)):  # both
+            getattr(b, name).fill_(value)
+        b.reflecting_walls.zero_()
+        b.reflecting_walls[0] = torch.tensor([0.0, 1.0, 4.0])
+    listener = torch.tensor([[2.0, 1.5, 1.5]])
+    source = torch.tensor([[5.5, 1.5, 1.5]])
+    yaw = torch.zeros(1)
+    c = model.rir.sound_speed
+    with torch.no_grad():
+        direct = model.direct_sound(listener, yaw, source)
+        assert direct.arrival.item() == pytest.approx(math.hypot(3.5, 5.0) / c)
+        image_theta = math.atan2(6.5 - 1.5, 5.5 - 2.0)  # the image source (5.5, 6.5): left of the facing
+        tau = float(model.head_itd(torch.tensor(image_theta)))
+        assert tau > 2e-4  # on the left: the right ear later
+        assert direct.delays[0].tolist() == pytest.approx([0.0, tau])
+        assert math.isnan(direct.ild[0].item())  # behind a wall the early ILD stays B's
+        b.reflected_arrival.copy_(torch.tensor([1.0, 0.0]))  # its direction, the straight line's delay
+        direction = model.direct_sound(listener, yaw, source)
+        b.reflected_arrival.zero_()
+        straight = model.direct_sound(listener, yaw, source)
+    assert direction.arrival.item() == pytest.approx(3.5 / c) and direction.delays[0].tolist() == pytest.approx([0.0, tau])
+    assert straight.arrival.item() == pytest.approx(3.5 / c)
+    assert straight.delays[0].abs().max().item() < 1e-6  # straight ahead: no ITD

@@ -1,4 +1,4 @@
-"""The walls' first reflections, and the early ILD they give the first 5 ms of a response.
+"""The walls' first reflections: the early ILD of a response's first 5 ms, and the first sound behind a wall.
 
 The early ILD (:func:`avgs.evaluation.spatial.early_ild`) reads both ears' energy over the 5 ms
 after the onset. Where the straight path is free, that stretch holds the direct sound and every
@@ -21,6 +21,10 @@ nothing here.
   point (at least :data:`SURFACE_POINTS` of them within :data:`SURFACE_RADIUS_M`: a door is a gap),
   and neither leg is behind a wall (:mod:`avgs.acoustics.line_of_sight`'s test, the reflecting
   wall's own points left out).
+- :func:`first_reflection`: behind a wall, the shortest of those reflections that happens: in a simulator
+  without diffraction or transmission the first sound to arrive (a reflection that passes the door), and
+  :func:`reflection_first`, whether the training pairs behind a wall say so, for its direction (the ITD)
+  and for its delay (the onset), each on its own.
 - :func:`early_ild`: the stretch's ILD from the direct sound and the reflections inside the window,
   each weighted by ``gain^2 / path^2`` (the direct sound's gain 1), its energy shared between the
   ears by the law at its direction. :func:`fit_early_ild` fits the law and the walls' gain together
@@ -245,6 +249,52 @@ def wall_reflections(listener: torch.Tensor, source: torch.Tensor, walls: torch.
     happens = happens.clone()
     happens[b_idx, p_idx] = ok
     return WallReflections(image, path, happens)
+
+
+@dataclass(frozen=True)
+class FirstReflection:
+    """The shortest first-order reflection that happens, per pose (a straight path behind a wall)."""
+
+    found: torch.Tensor  # [B] bool: some wall's reflection happens
+    image: torch.Tensor  # [B, 3] its image source (the source where none)
+    path: torch.Tensor  # [B] its path length (the straight one where none)
+
+
+def first_reflection(listener: torch.Tensor, source: torch.Tensor, walls: torch.Tensor, points: torch.Tensor,
+                     test: ReflectionTest, point_sets: tuple[list[torch.Tensor], torch.Tensor] | None = None) -> FirstReflection:
+    """For poses ``listener, source [B, 3]``, the shortest of the walls' first-order reflections that happen
+    (:func:`wall_reflections`, whatever their length): where the straight path is behind a wall, the first
+    sound to arrive in a simulator without diffraction or transmission (a reflection that passes the door),
+    when one wall's reflection is enough. Float64."""
+    found = wall_reflections(listener, source, walls, points, test, point_sets=point_sets)
+    listener, source = listener.to(torch.float64), source.to(torch.float64)
+    straight = torch.linalg.vector_norm(source - listener, dim=-1)  # [B]
+    if walls.shape[0] == 0:
+        return FirstReflection(torch.zeros_like(straight, dtype=torch.bool), source, straight)
+    path = torch.where(found.happens, found.path, torch.full_like(found.path, math.inf))  # [B, P]
+    shortest, wall = path.min(-1)  # [B]
+    ok = torch.isfinite(shortest)
+    image = found.image.gather(1, wall[:, None, None].expand(-1, 1, 3))[:, 0]  # [B, 3]
+    return FirstReflection(ok, torch.where(ok[:, None], image, source), torch.where(ok, shortest, straight))
+
+
+ARRIVAL_PAIRS = 8
+"Pairs behind a wall, each with a first-order reflection, that :func:`reflection_first` needs to choose it."
+
+
+def reflection_first(measured, straight, reflected) -> tuple[bool, float | None, float | None]:
+    """Whether pairs behind a wall hear their first sound from the first reflection: what it predicts,
+    ``reflected [M]`` (the head's ITD at its direction, or its path / c), closer to what was measured,
+    ``measured [M]`` (the early ITDs, or the onsets; NaN: left out), than what the straight line predicts,
+    ``straight [M]``, by the median absolute error, over at least :data:`ARRIVAL_PAIRS` pairs; with the two
+    medians (None with fewer pairs)."""
+    measured, straight, reflected = (torch.as_tensor(np.asarray(a, dtype=np.float64)) for a in (measured, straight, reflected))
+    keep = torch.isfinite(measured)
+    if int(keep.sum()) < ARRIVAL_PAIRS:
+        return False, None, None
+    e_straight = float((straight - measured)[keep].abs().median())
+    e_reflected = float((reflected - measured)[keep].abs().median())
+    return e_reflected < e_straight, e_straight, e_reflected
 
 
 def image_directions(listener: torch.Tensor, yaw: torch.Tensor, image: torch.Tensor) -> torch.Tensor:

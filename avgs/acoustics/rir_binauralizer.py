@@ -102,8 +102,9 @@ LEVEL_BUFFERS = ("level_law",)
 WALL_BUFFERS = ("wall_loss", "wall_radius", "wall_margin", "wall_unit")
 "B's wall term, fitted at training (direct_sound, wall_loss): a checkpoint without them has none."
 
-REFLECTION_BUFFERS = ("reflecting_walls", "reflection_gain", "reflection_radius", "reflection_points", "reflection_band")
-"The walls' first reflections in the early ILD, fitted at training (direct_ild, early_reflections)."
+REFLECTION_BUFFERS = ("reflecting_walls", "reflection_gain", "reflection_radius", "reflection_points", "reflection_band",
+                      "reflected_arrival")
+"The walls' first reflections (the early ILD; behind a wall, the arrival), fitted at training (direct_ild, early_reflections)."
 
 ILD_BUFFERS = ("ild_law", "sight_radius", "sight_margin", "sight_blocked", "local_at", "local_residual",
                "local_scale") + REFLECTION_BUFFERS
@@ -209,6 +210,12 @@ class RIRBinauralizer(nn.Module):
             self.register_buffer("reflection_band", torch.tensor(0.0))
         else:
             self.reflecting_walls = None
+        if self.reflecting_walls is not None and cfg.reflected_arrival:
+            # [2]: behind a wall, the first sound's direction (its ITD) and its delay (the onset) from the walls' first
+            # reflection (1) or the straight line (0), each as the training pairs behind a wall say (fitted by avgs.train)
+            self.register_buffer("reflected_arrival", torch.zeros(2))
+        else:
+            self.reflected_arrival = None
 
     def time_features(self) -> torch.Tensor:
         """``W_t PE(t) + b_t`` for every frame ``[N, W]``: cacheable."""

@@ -31,10 +31,10 @@ import torch
 from torch import nn
 
 from avgs import dsp
-from avgs.acoustics.early_reflections import (WINDOW_S, ReflectionTest, early_ild, image_directions, wall_point_sets,
-                                              wall_reflections)
+from avgs.acoustics.early_reflections import (WINDOW_S, ReflectionTest, early_ild, first_reflection, image_directions,
+                                              wall_point_sets, wall_reflections)
 from avgs.acoustics.field import AcousticField
-from avgs.acoustics.interaural import (direct_level_db, ear_delays, ild_law, itd_law, lagging_ear, local_correction,
+from avgs.acoustics.interaural import (direct_level_db, ild_law, interaural_delay, itd_law, lagging_ear, local_correction,
                                       local_features)
 from avgs.acoustics.line_of_sight import points_on_path
 from avgs.acoustics.model import AVGSModel, ModelCache
@@ -191,9 +191,57 @@ class RIRModel(AVGSModel):
         if level is not None:  # 1 / d^2 and the head's gain where the straight path is free; behind a wall B's
             energy = 10.0 ** (direct_level_db(theta, distance, level.double()) / 10.0)  # [B]
             energy = torch.where(blocked, torch.full_like(energy, float("nan")), energy)
-        itd = getattr(b, "itd_law", None)  # the fitted head's law, else Woodworth's sphere with the fitted scale
-        delays = ear_delays(theta, float(scale)) if itd is None else lagging_ear(itd_law(theta, itd.double()))  # [B, 2] s
-        return DirectSound(distance / self.rir.sound_speed, delays, ild, energy)
+        path, heard_from = distance, theta  # [B]: the first sound's path and direction
+        use = getattr(b, "reflected_arrival", None)  # [2]: behind a wall, the first reflection's direction, its delay
+        if use is not None and bool(blocked.any()) and bool((use > 0.5).any()):
+            reflected_path, reflected_from = self.first_arrival(listener, yaw, source, blocked, distance, theta)
+            heard_from = reflected_from if use[0] > 0.5 else theta
+            path = reflected_path if use[1] > 0.5 else distance
+        return DirectSound(path / self.rir.sound_speed, lagging_ear(self.head_itd(heard_from)), ild, energy)
+
+    def head_itd(self, theta: torch.Tensor) -> torch.Tensor:
+        """The head's ITD ``[...]`` seconds (> 0: the right ear later) of directions ``theta [...]`` radians, float64:
+        the fitted law (``RIRConfig.direct_itd``), else Woodworth's sphere with the fitted scale."""
+        b, theta = self.binauralizer, theta.double()
+        law = getattr(b, "itd_law", None)
+        return interaural_delay(theta, float(b.itd_scale)) if law is None else itd_law(theta, law.to(theta.device, torch.float64))
+
+    def first_arrival(self, listener: torch.Tensor, yaw: torch.Tensor, source: torch.Tensor, blocked: torch.Tensor,
+                      distance: torch.Tensor, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The first sound's path ``[B]`` and direction ``[B]`` (radians): where ``blocked [B]``, the shortest
+        of the walls' first-order reflections whose legs are free
+        (:func:`~avgs.acoustics.early_reflections.first_reflection`), else (and where none happens) the
+        straight line's ``distance`` and ``theta``. listener, source [B, 3] normalised; yaw [B] radians."""
+        setup = self.reflection_setup()
+        if setup is None:
+            return distance, theta
+        walls, test, point_sets = setup
+        at = torch.nonzero(blocked, as_tuple=True)[0]
+        first = first_reflection(listener[at].detach(), source[at].detach(), walls, self.points.X.detach(), test, point_sets)
+        found = at[first.found]
+        if found.numel() == 0:
+            return distance, theta
+        path, heard_from = distance.clone(), theta.clone()
+        path[found] = first.path[first.found].to(path)
+        heard_from[found] = image_directions(listener[found], yaw[found], first.image[first.found][:, None])[:, 0].to(theta)
+        return path, heard_from
+
+    def reflection_setup(self) -> tuple[torch.Tensor, ReflectionTest, tuple] | None:
+        """The walls found ``[P, 3]``, the reflections' test and each wall's point sets (kept while G_a is
+        unchanged), or None without walls."""
+        b = self.binauralizer
+        walls = getattr(b, "reflecting_walls", None)
+        if walls is not None:
+            walls = walls[walls[:, :2].abs().sum(-1) > 0]  # [P, 3] the walls found (rows of zeros: none)
+        if walls is None or walls.shape[0] == 0:
+            return None
+        test = ReflectionTest(float(b.reflection_radius), int(b.reflection_points), float(b.reflection_band),
+                              float(b.sight_radius), float(b.sight_margin), float(b.sight_blocked))
+        points = self.points.X.detach()
+        key = (points.data_ptr(), tuple(points.shape), _version(points), walls.tolist(), test)
+        if getattr(self, "_wall_points", (None,))[0] != key:  # each wall's own points and the rest: fixed while G_a is
+            self._wall_points = (key, wall_point_sets(points, walls, test))
+        return walls, test, self._wall_points[1]
 
     def early_ild(self, listener: torch.Tensor, yaw: torch.Tensor, source: torch.Tensor, theta: torch.Tensor,
                   distance: torch.Tensor) -> torch.Tensor:
@@ -203,19 +251,12 @@ class RIRModel(AVGSModel):
         radians; distance [B] the straight path."""
         b = self.binauralizer
         law = b.ild_law.double()
-        walls = getattr(b, "reflecting_walls", None)
-        if walls is not None:
-            walls = walls[walls[:, :2].abs().sum(-1) > 0]  # [P, 3] the walls found (rows of zeros: none)
-        if walls is None or walls.shape[0] == 0:
+        setup = self.reflection_setup()
+        if setup is None:
             return ild_law(theta, law)
-        test = ReflectionTest(float(b.reflection_radius), int(b.reflection_points), float(b.reflection_band),
-                              float(b.sight_radius), float(b.sight_margin), float(b.sight_blocked))
-        points = self.points.X.detach()
-        key = (points.data_ptr(), tuple(points.shape), _version(points), walls.tolist(), test)
-        if getattr(self, "_wall_points", (None,))[0] != key:  # each wall's own points and the rest: fixed while G_a is
-            self._wall_points = (key, wall_point_sets(points, walls, test))
-        found = wall_reflections(listener.detach(), source.detach(), walls, points, test,
-                                 longest=distance + WINDOW_S * self.rir.sound_speed, point_sets=self._wall_points[1])
+        walls, test, point_sets = setup
+        found = wall_reflections(listener.detach(), source.detach(), walls, self.points.X.detach(), test,
+                                 longest=distance + WINDOW_S * self.rir.sound_speed, point_sets=point_sets)
         reflected = image_directions(listener, yaw, found.image)  # [B, P]
         return early_ild(theta, distance, reflected, found.path, found.happens, law, float(b.reflection_gain))
 

@@ -71,6 +71,8 @@ def summary(path) -> dict:
                              else int((ckpt["binauralizer"]["reflecting_walls"][:, :2].abs().sum(-1) > 0).sum())),
         "reflection_gain": (None if ckpt["binauralizer"].get("reflection_gain") is None
                             else float(ckpt["binauralizer"]["reflection_gain"])),
+        "reflected_arrival": (None if ckpt["binauralizer"].get("reflected_arrival") is None
+                              else [bool(float(v) > 0.5) for v in ckpt["binauralizer"]["reflected_arrival"]]),
         "blocked_from_points": (None if ckpt["binauralizer"].get("sight_blocked") is None
                                 else float(ckpt["binauralizer"]["sight_blocked"])),
         "wall_loss_db": (None if ckpt["binauralizer"].get("wall_loss") is None
@@ -162,6 +164,11 @@ def run(args: argparse.Namespace) -> int:
         mixed = (f", mixed with the first reflections off {walls} walls found in the audio points (gain "
                  f"{info['reflection_gain']:.2f})" if walls else "")
         print(f"  direct sound's ILD: {law} dB{mixed}{near}, {where}")
+        arrival = info["reflected_arrival"]
+        if arrival is not None and walls and not never_blocked(blocked):
+            told = {True: "the walls' first reflection", False: "the straight line"}
+            print(f"  behind a wall, the first sound's direction from {told[arrival[0]]}, its delay from "
+                  f"{told[arrival[1]]} (as the training responses behind a wall say)")
     if info["level_law_db"] is not None:
         c0, c1, c2 = info["level_law_db"]
         print(f"  direct sound's level: {c0:.1f} {'-' if c1 < 0 else '+'} {abs(c1):.1f} cos theta {'-' if c2 < 0 else '+'} "

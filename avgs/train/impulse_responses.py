@@ -313,6 +313,8 @@ class ImpulseResponseTraining:
         self._in_sight: np.ndarray | None = None  # [M] training pairs whose first arrival is the direct sound
         self._theta: torch.Tensor | None = None  # [M] their directions, radians
         self._ilds: np.ndarray | None = None  # [M] their early ILDs, dB
+        self._itds: np.ndarray | None = None  # [M] their early ITDs, s (the metric's sign)
+        self._onsets: np.ndarray | None = None  # [M] their onsets, s
         self._seed = int(cfg.seed)
         self._log: JsonLinesLog | None = None
 
@@ -353,6 +355,7 @@ class ImpulseResponseTraining:
             in_sight = spatial.in_sight(onsets, distance, cfg.rir.sound_speed)  # the first arrival is the direct sound
             self._in_sight = in_sight  # the straight path's tests are fitted on them with the model's points (trainer)
             self._theta, self._ilds = theta, np.asarray(ilds, dtype=np.float64)  # for the walls' reflections (trainer)
+            self._itds, self._onsets = np.asarray(itds, dtype=np.float64), np.asarray(onsets)  # [M] s: behind a wall, the first arrival (trainer)
             if cfg.rir.direct_itd:  # the head's own ITD against the direction, from those responses
                 law = fit_itd_law(theta.numpy()[in_sight], -np.asarray(itds)[in_sight])
                 self.itd_law = None if law is None else [float(c) for c in law]
@@ -440,6 +443,48 @@ class ImpulseResponseTraining:
                 self.ild_table = local_table(train, self._theta, self._ilds, self._in_sight, predicted.numpy())
                 with torch.no_grad():
                     b.local_residual.copy_(self.ild_table[1])
+        if self._log is not None:
+            self._log.write(record)
+        if fit is not None and getattr(b, "reflected_arrival", None) is not None:
+            self._fit_arrival(model)
+
+    def _fit_arrival(self, model: RIRModel) -> None:
+        """Where the first sound behind a wall comes from (``RIRConfig.reflected_arrival``): on the training pairs
+        whose straight path the points' test puts behind a wall and that have a first-order reflection off the
+        walls found, the head's ITD at the reflection's direction against the straight direction's, and its
+        path / c against distance / c, each against the pairs' measured early ITDs and onsets; each of the
+        reflection's where it is the closer (:func:`~avgs.acoustics.early_reflections.reflection_first`), into
+        ``model``'s ``reflected_arrival`` (direction, delay). The points' test also blocks pairs in sight (a
+        third of three_rooms'): there the straight line's delay is right, and the onsets say so."""
+        from avgs.acoustics.early_reflections import first_reflection, image_directions, reflection_first
+
+        b, train = model.binauralizer, self.train_set
+        blocked = torch.as_tensor(self._counts_on_paths(model, float(b.sight_radius), float(b.sight_margin))
+                                  >= float(b.sight_blocked))  # [M] the deployment's test
+        at = torch.nonzero(blocked, as_tuple=True)[0]
+        listener = torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64)[at]
+        source = torch.as_tensor(np.asarray(train.source), dtype=torch.float64)[at]
+        yaw = torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64)))[at]
+        setup = model.reflection_setup()
+        record = {"stage": "arrival", "event": "fit", "pairs_behind": int(at.numel()), "with_reflection": 0,
+                  "direction": False, "delay": False}
+        if setup is not None and at.numel():
+            walls, test, _ = setup
+            first = first_reflection(listener, source, walls, model.points.X.detach().double().cpu(), test)
+            ok = first.found
+            measured = -torch.as_tensor(self._itds, dtype=torch.float64)[at][ok]  # the head's sign: > 0 right ear later
+            straight = model.head_itd(signed_direction(listener, yaw, source))[ok]
+            reflected = model.head_itd(image_directions(listener, yaw, first.image[:, None])[:, 0])[ok]
+            direction, itd_straight, itd_reflected = reflection_first(measured, straight, reflected)
+            c = float(model.rir.sound_speed)
+            onsets = torch.as_tensor(self._onsets, dtype=torch.float64)[at][ok]
+            delay, onset_straight, onset_reflected = reflection_first(
+                onsets, torch.linalg.vector_norm(source - listener, dim=-1)[ok] / c, first.path[ok] / c)
+            record.update({"with_reflection": int(ok.sum()), "direction": direction, "delay": delay,
+                           "itd_error_us": [None if e is None else 1e6 * e for e in (itd_straight, itd_reflected)],
+                           "onset_error_ms": [None if e is None else 1e3 * e for e in (onset_straight, onset_reflected)]})
+        with torch.no_grad():
+            b.reflected_arrival.copy_(torch.tensor([float(record["direction"]), float(record["delay"])]))
         if self._log is not None:
             self._log.write(record)
 
