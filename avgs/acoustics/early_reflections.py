@@ -207,33 +207,26 @@ LEGS_AT_ONCE = 256
 "Legs tested in one product of :func:`~avgs.acoustics.line_of_sight.points_on_path` ([N, legs] at a time)."
 
 
-def wall_reflections(listener: torch.Tensor, source: torch.Tensor, walls: torch.Tensor, points: torch.Tensor,
-                     test: ReflectionTest, longest: torch.Tensor | None = None,
-                     point_sets: tuple[list[torch.Tensor], torch.Tensor] | None = None) -> WallReflections:
-    """Each wall's first-order reflection for poses ``listener, source [B, 3]`` (``walls [P, 3]`` of
-    :func:`find_walls`, ``points [N, 3]`` G_a's, all in one unit). ``longest [B]``: paths longer than
-    this cannot count (the early window), so their tests are skipped (``happens`` False). ``point_sets``:
-    :func:`wall_point_sets` of these points, walls and test, when the caller keeps them. The points' tests
-    run in the points' precision, the geometry in float64."""
-    dtype = torch.float64
-    listener, source = listener.to(dtype), source.to(dtype)
-    walls, points = walls.to(listener.device, dtype), points.detach().to(listener.device)
-    P = walls.shape[0]
+def _images(listener: torch.Tensor, source: torch.Tensor, walls: torch.Tensor):
+    """The mirror geometry in float64: each wall's image source ``[B, P, 3]``, path ``[B, P]``, whether both
+    are on the wall's side ``[B, P]`` and the reflection point ``[B, P, 3]`` (listener -> image meets the plane)."""
     n = torch.nn.functional.pad(walls[:, :2], (0, 1))  # [P, 3] the normals, z = 0
     side_s = source @ n.T - walls[:, 2]  # [B, P] signed distances to each wall's plane
     side_l = listener @ n.T - walls[:, 2]
     image = source[:, None, :] - 2.0 * side_s[..., None] * n  # [B, P, 3]
     path = torch.linalg.vector_norm(image - listener[:, None, :], dim=-1)  # [B, P]
-    happens = (side_s * side_l > 0) & (side_s.abs() > 0) & (side_l.abs() > 0)
-    if longest is not None:
-        happens &= path <= longest.to(dtype)[:, None]
-    if P == 0 or not bool(happens.any()):
-        return WallReflections(image, path, happens)
-    t = side_l / (side_l + side_s).where(happens, torch.ones_like(side_l))  # [B, P] along listener -> image
-    at = listener[:, None, :] + t[..., None] * (image - listener[:, None, :])  # [B, P, 3] the reflection point
-    b_idx, p_idx = torch.nonzero(happens, as_tuple=True)  # the candidates, tested one wall at a time
+    facing = (side_s * side_l > 0) & (side_s.abs() > 0) & (side_l.abs() > 0)
+    t = side_l / (side_l + side_s).where(facing, torch.ones_like(side_l))  # [B, P] along listener -> image
+    at = listener[:, None, :] + t[..., None] * (image - listener[:, None, :])  # [B, P, 3]
+    return image, path, facing, at
+
+
+def _happens(listener: torch.Tensor, source: torch.Tensor, at: torch.Tensor, b_idx: torch.Tensor, p_idx: torch.Tensor,
+             points: torch.Tensor, test: ReflectionTest, point_sets: tuple[list[torch.Tensor], torch.Tensor]) -> torch.Tensor:
+    """Whether each candidate ``(b_idx, p_idx) [m]`` (pose, wall) happens ``[m]``: the points put a wall at its
+    reflection point ``at [B, P, 3]`` and neither leg is behind a wall (the wall's own points aside)."""
     ok = torch.zeros(b_idx.shape[0], dtype=torch.bool, device=listener.device)
-    on_wall, off_wall = wall_point_sets(points, walls, test) if point_sets is None else point_sets
+    on_wall, off_wall = point_sets
     for p in torch.unique(p_idx).tolist():  # a wall at the reflection point: its own points near it
         sel = torch.nonzero(p_idx == p, as_tuple=True)[0]
         square = (on_wall[p][None] - at[b_idx[sel], p].to(points.dtype)[:, None]).square().sum(-1)  # [m, n]
@@ -246,8 +239,29 @@ def wall_reflections(listener: torch.Tensor, source: torch.Tensor, walls: torch.
             along = points_on_path(points, torch.cat([source[b_idx[c]], x]), torch.cat([x, listener[b_idx[c]]]),
                                    test.sight_radius, test.sight_margin, keep=off_wall[:, p_idx[c].repeat(2)])  # [2 m]
             ok[c] = (along[:m] < test.sight_blocked) & (along[m:] < test.sight_blocked)
+    return ok
+
+
+def wall_reflections(listener: torch.Tensor, source: torch.Tensor, walls: torch.Tensor, points: torch.Tensor,
+                     test: ReflectionTest, longest: torch.Tensor | None = None,
+                     point_sets: tuple[list[torch.Tensor], torch.Tensor] | None = None) -> WallReflections:
+    """Each wall's first-order reflection for poses ``listener, source [B, 3]`` (``walls [P, 3]`` of
+    :func:`find_walls`, ``points [N, 3]`` G_a's, all in one unit). ``longest [B]``: paths longer than
+    this cannot count (the early window), so their tests are skipped (``happens`` False). ``point_sets``:
+    :func:`wall_point_sets` of these points, walls and test, when the caller keeps them. The points' tests
+    run in the points' precision, the geometry in float64."""
+    dtype = torch.float64
+    listener, source = listener.to(dtype), source.to(dtype)
+    walls, points = walls.to(listener.device, dtype), points.detach().to(listener.device)
+    image, path, happens, at = _images(listener, source, walls)
+    if longest is not None:
+        happens &= path <= longest.to(dtype)[:, None]
+    if walls.shape[0] == 0 or not bool(happens.any()):
+        return WallReflections(image, path, happens)
+    b_idx, p_idx = torch.nonzero(happens, as_tuple=True)  # the candidates, tested one wall at a time
+    sets = wall_point_sets(points, walls, test) if point_sets is None else point_sets
     happens = happens.clone()
-    happens[b_idx, p_idx] = ok
+    happens[b_idx, p_idx] = _happens(listener, source, at, b_idx, p_idx, points, test, sets)
     return WallReflections(image, path, happens)
 
 
@@ -263,19 +277,31 @@ class FirstReflection:
 def first_reflection(listener: torch.Tensor, source: torch.Tensor, walls: torch.Tensor, points: torch.Tensor,
                      test: ReflectionTest, point_sets: tuple[list[torch.Tensor], torch.Tensor] | None = None) -> FirstReflection:
     """For poses ``listener, source [B, 3]``, the shortest of the walls' first-order reflections that happen
-    (:func:`wall_reflections`, whatever their length): where the straight path is behind a wall, the first
-    sound to arrive in a simulator without diffraction or transmission (a reflection that passes the door),
-    when one wall's reflection is enough. Float64."""
-    found = wall_reflections(listener, source, walls, points, test, point_sets=point_sets)
-    listener, source = listener.to(torch.float64), source.to(torch.float64)
+    (:func:`wall_reflections`' test, whatever their length): where the straight path is behind a wall, the
+    first sound to arrive in a simulator without diffraction or transmission (a reflection that passes the
+    door), when one wall's reflection is enough. The candidates are tested shortest first, and a pose's
+    search stops at the first that happens: one or two tests a pose, not one per wall. Float64."""
+    dtype = torch.float64
+    listener, source = listener.to(dtype), source.to(dtype)
+    walls, points = walls.to(listener.device, dtype), points.detach().to(listener.device)
     straight = torch.linalg.vector_norm(source - listener, dim=-1)  # [B]
+    found = torch.zeros_like(straight, dtype=torch.bool)
+    image, path = source.clone(), straight.clone()
     if walls.shape[0] == 0:
-        return FirstReflection(torch.zeros_like(straight, dtype=torch.bool), source, straight)
-    path = torch.where(found.happens, found.path, torch.full_like(found.path, math.inf))  # [B, P]
-    shortest, wall = path.min(-1)  # [B]
-    ok = torch.isfinite(shortest)
-    image = found.image.gather(1, wall[:, None, None].expand(-1, 1, 3))[:, 0]  # [B, 3]
-    return FirstReflection(ok, torch.where(ok[:, None], image, source), torch.where(ok, shortest, straight))
+        return FirstReflection(found, image, path)
+    images, paths, facing, at = _images(listener, source, walls)
+    order = torch.where(facing, paths, torch.full_like(paths, math.inf)).argsort(-1)  # [B, P] shortest first
+    sets = wall_point_sets(points, walls, test) if point_sets is None else point_sets
+    for rank in range(walls.shape[0]):
+        wall = order[:, rank]  # [B]
+        b_idx = torch.nonzero(~found & facing.gather(1, wall[:, None])[:, 0], as_tuple=True)[0]
+        if b_idx.numel() == 0:
+            break
+        p_idx = wall[b_idx]
+        ok = _happens(listener, source, at, b_idx, p_idx, points, test, sets)
+        b_ok, p_ok = b_idx[ok], p_idx[ok]
+        found[b_ok], image[b_ok], path[b_ok] = True, images[b_ok, p_ok], paths[b_ok, p_ok]
+    return FirstReflection(found, image, path)
 
 
 ARRIVAL_PAIRS = 8
