@@ -454,8 +454,9 @@ class ImpulseResponseTraining:
         walls found, the head's ITD at the reflection's direction against the straight direction's, and its
         path / c against distance / c, each against the pairs' measured early ITDs and onsets; each of the
         reflection's where it is the closer (:func:`~avgs.acoustics.early_reflections.reflection_first`), into
-        ``model``'s ``reflected_arrival`` (direction, delay). The points' test also blocks pairs in sight (a
-        third of three_rooms'): there the straight line's delay is right, and the onsets say so."""
+        ``model``'s ``reflected_arrival`` (direction, delay). Many pairs the points block hear their first sound
+        within 1 ms of distance / c all the same (a third of three_rooms'): there the straight line's delay is
+        the better one, and the onsets say so."""
         from avgs.acoustics.early_reflections import first_reflection, image_directions, reflection_first
 
         b, train = model.binauralizer, self.train_set
