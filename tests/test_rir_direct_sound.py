@@ -423,6 +423,23 @@ def test_the_direct_sound_falls_as_one_over_d_squared_near_the_source(renderer):
     assert levels[0.5] - levels[1.0] == pytest.approx(6.0, abs=1.5)
 
 
+def test_a_source_at_the_head_is_no_louder_than_one_at_its_radius(renderer):
+    """The level law is 1 / d^2: a source typed onto the listener (d = 0, or a hair off) would get a direct
+    sound tens of dB over everything near it (a peak of 2000 on the demo), straight into the explorer's
+    audio. Nearer than the head's radius the law holds its value at the radius: finite, and no louder."""
+    from avgs.acoustics.interaural import HEAD_RADIUS
+
+    r = renderer
+    lo, hi = r.bounds
+    listener = (lo + hi) / 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # B's own gain this near is over the headroom: scaled, and said
+        peaks = {d: float(np.abs(r.binaural_filter(listener, 0.0, listener + np.array([d, 0.0, 0.0])).impulse).max())
+                 for d in (0.0, 1e-4, 0.5 * HEAD_RADIUS, HEAD_RADIUS)}
+    assert all(math.isfinite(p) for p in peaks.values())
+    assert max(peaks[0.0], peaks[1e-4], peaks[0.5 * HEAD_RADIUS]) <= 1.5 * peaks[HEAD_RADIUS]
+
+
 def test_the_direct_level_replaces_b_s_share_of_the_first_window(renderer, tmp_path):
     """Where B's first frames hold the direct sound (a source 2.5 m away), the law's impulse comes out of
     that window: the response's whole energy is the one without the law (the same weights, the law

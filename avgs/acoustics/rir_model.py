@@ -34,8 +34,8 @@ from avgs import dsp
 from avgs.acoustics.early_reflections import (WINDOW_S, ReflectionTest, early_ild, first_reflection, image_directions,
                                               wall_point_sets, wall_reflections)
 from avgs.acoustics.field import AcousticField
-from avgs.acoustics.interaural import (direct_level_db, ild_law, interaural_delay, itd_law, lagging_ear, local_correction,
-                                      local_features)
+from avgs.acoustics.interaural import (HEAD_RADIUS, SPEED_OF_SOUND, direct_level_db, ild_law, interaural_delay, itd_law,
+                                      lagging_ear, local_correction, local_features)
 from avgs.acoustics.line_of_sight import points_on_path
 from avgs.acoustics.model import AVGSModel, ModelCache
 from avgs.acoustics.points import AudioPoints
@@ -189,7 +189,8 @@ class RIRModel(AVGSModel):
         energy = None
         level = getattr(b, "level_law", None)
         if level is not None:  # 1 / d^2 and the head's gain where the straight path is free; behind a wall B's
-            energy = 10.0 ** (direct_level_db(theta, distance, level.double()) / 10.0)  # [B]
+            nearest = HEAD_RADIUS * self.rir.sound_speed / SPEED_OF_SOUND  # the head's radius in the model's units
+            energy = 10.0 ** (direct_level_db(theta, distance.clamp_min(nearest), level.double()) / 10.0)  # [B]
             energy = torch.where(blocked, torch.full_like(energy, float("nan")), energy)
         path, heard_from = distance, theta  # [B]: the first sound's path and direction
         use = getattr(b, "reflected_arrival", None)  # [2]: behind a wall, the first reflection's direction, its delay
