@@ -280,7 +280,7 @@ def first_reflection(listener: torch.Tensor, source: torch.Tensor, walls: torch.
     (:func:`wall_reflections`' test, whatever their length): where the straight path is behind a wall, the
     first sound to arrive in a simulator without diffraction or transmission (a reflection that passes the
     door), when one wall's reflection is enough. The candidates are tested shortest first, and a pose's
-    search stops at the first that happens: one or two tests a pose, not one per wall. Float64."""
+    search stops at the first that happens: a few tests a pose, not one per wall. Float64."""
     dtype = torch.float64
     listener, source = listener.to(dtype), source.to(dtype)
     walls, points = walls.to(listener.device, dtype), points.detach().to(listener.device)
