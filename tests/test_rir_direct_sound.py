@@ -508,8 +508,8 @@ def test_behind_a_wall_the_first_sound_comes_by_the_reflection_that_passes_the_o
     """A partition at x = 3 (y < 2, open above) between a listener facing +x and a source straight ahead:
     with ``reflected_arrival`` the direct sound arrives along the y = 4 wall's reflection, which passes the
     opening (its path / c, the ITD of its image source on the left: the right ear later), or with its
-    direction alone; off, along the straight line with no ITD. The quick room's own training has no pair behind a wall: its fit says so and
-    keeps the straight line."""
+    direction alone; off, along the straight line with no ITD. The quick room's own training has no pair
+    behind a wall: its fit says so and keeps the straight line."""
     import copy
 
     assert renderer.config.rir.reflected_arrival and renderer.model.binauralizer.reflected_arrival.tolist() == [0.0, 0.0]
