@@ -80,6 +80,10 @@ class GuiCall:
             box["error"] = exc
         done.set()
 
+    def post(self, fn: Callable[[], Any]) -> None:
+        """Queue ``fn`` on the GUI thread without waiting (dropped if the event loop has ended)."""
+        self._invoker.call.emit((fn, {}, threading.Event()))
+
     def __call__(self, fn: Callable[[], Any], timeout: float = 30.0) -> Any:
         box, done = {}, threading.Event()
         self._invoker.call.emit((fn, box, done))
@@ -273,10 +277,12 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, idle_s: float = 5.0
             except BaseException as exc:
                 box["error"] = exc
             finally:
+                # Closing the last window may end the event loop itself: the quit is posted, not
+                # waited for (a call left unanswered would hold the join below for its 10 s).
                 try:
                     gui(w.close, timeout=60)
                 finally:
-                    gui(app.quit, timeout=60)
+                    gui.post(app.quit)
 
         QtCore.QTimer.singleShot(0, lambda: w.open_scene(scene_path))
         thread = threading.Thread(target=driver, name="bench-driver", daemon=True)

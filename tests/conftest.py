@@ -1,4 +1,5 @@
-"""Shared fixtures: synthetic scenes from ``avgs synth`` (generated once per session).
+"""Shared fixtures: synthetic scenes from ``avgs synth`` (generated once per run: under
+pytest-xdist the first worker to need one builds it, the others copy it: ``built_once.py``).
 
 - ``quick_scene``: an office scene made with ``--quick`` (16 train + 4 val poses, 64x48
   frames), its own data root.
@@ -14,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from built_once import built_once
+
 FOREIGN_ENTRY = {"real_scene": {"source_position": [0.1, -0.2, 0.3]}}
 
 
@@ -22,9 +25,10 @@ def quick_scene(tmp_path_factory) -> Path:
     """Path of a quick synthetic office scene (DATA_ROOT/office_quick)."""
     from avgs.synth.writer import SynthConfig, write_scene
 
-    root = tmp_path_factory.mktemp("synth_quick")
-    result = write_scene(root, "office_quick", SynthConfig.quick_config("office", seed=0, workers=1), progress=False)
-    return result.scene_dir
+    def build(root: Path) -> None:
+        write_scene(root, "office_quick", SynthConfig.quick_config("office", seed=0, workers=1), progress=False)
+
+    return built_once(tmp_path_factory, "synth_quick", build) / "office_quick"
 
 
 @pytest.fixture(scope="session")
@@ -32,10 +36,12 @@ def quick_rir_scene(tmp_path_factory) -> Path:
     """Path of a quick impulse-response scene, ``avgs synth --task rir --quick`` (DATA_ROOT/quick_rect); read only."""
     from avgs.cli import main
 
-    root = tmp_path_factory.mktemp("rir_quick")
-    argv = ["synth", str(root), "--task", "rir", "--quick", "--scene-id", "quick_rect", "--workers", "1", "--no-progress"]
-    assert main(argv) == 0
-    return root / "quick_rect"
+    def build(root: Path) -> None:
+        argv = ["synth", str(root), "--task", "rir", "--quick", "--scene-id", "quick_rect", "--workers", "1",
+                "--no-progress"]
+        assert main(argv) == 0
+
+    return built_once(tmp_path_factory, "rir_quick", build) / "quick_rect"
 
 
 @pytest.fixture(scope="session")
@@ -48,18 +54,50 @@ def one_source_ckpt(tmp_path_factory) -> Path:
     from avgs.train.pipeline import quick_config, train_scene
     from rwavs_writer import write_scene as write_rwavs
 
-    root = tmp_path_factory.mktemp("one_source_scene")
-    scene = write_rwavs(root, n_train=32, n_val=4, seed=1)
-    cfg = quick_config()
-    cfg.acoustic.iterations, cfg.acoustic.binauralizer_width = 120, 64
-    cfg.points.densify_every, cfg.points.prune_every = 40, 100
-    cfg.eval_every = cfg.checkpoint_every = 120
-    cfg.log_every = 60
-    g = torch.Generator().manual_seed(0)
-    points = AudioPoints(torch.rand(600, 3, generator=g) * 2 - 1, torch.randn(600, 52, generator=g))
-    out = root / "scene.ckpt"
-    train_scene(scene.scene_dir, out, cfg, progress=False, initial_points=points)
-    return out
+    def build(root: Path) -> None:
+        scene = write_rwavs(root, n_train=32, n_val=4, seed=1)
+        cfg = quick_config()
+        cfg.acoustic.iterations, cfg.acoustic.binauralizer_width = 120, 64
+        cfg.points.densify_every, cfg.points.prune_every = 40, 100
+        cfg.eval_every = cfg.checkpoint_every = 120
+        cfg.log_every = 60
+        g = torch.Generator().manual_seed(0)
+        points = AudioPoints(torch.rand(600, 3, generator=g) * 2 - 1, torch.randn(600, 52, generator=g))
+        train_scene(scene.scene_dir, root / "scene.ckpt", cfg, progress=False, initial_points=points)
+
+    return built_once(tmp_path_factory, "one_source_scene", build) / "scene.ckpt"
+
+
+@pytest.fixture(scope="session")
+def free_field_model(tmp_path_factory):
+    """A free-field scene of ``rwavs_writer`` (48 training poses, the ear facing the source louder)
+    and a model trained on it for 200 stage-2 iterations, evaluated every 50: (the written
+    scene, the checkpoint, the final record). Read only."""
+    import dataclasses
+    import pickle
+
+    import torch
+
+    from avgs.acoustics.points import AudioPoints
+    from avgs.train.pipeline import quick_config, train_scene
+    from rwavs_writer import write_scene as write_rwavs
+
+    def build(root: Path) -> None:
+        scene = write_rwavs(root, n_train=48, n_val=8, seed=0)
+        cfg = quick_config()
+        cfg.acoustic.iterations, cfg.acoustic.binauralizer_width = 200, 64
+        cfg.points.densify_every, cfg.points.prune_every = 40, 120
+        cfg.eval_every = cfg.checkpoint_every = 50
+        cfg.log_every = 10
+        g = torch.Generator().manual_seed(0)
+        points = AudioPoints(torch.rand(600, 3, generator=g) * 2 - 1, torch.randn(600, 52, generator=g))
+        final = train_scene(scene.scene_dir, root / "scene.ckpt", cfg, progress=False, initial_points=points)
+        (root / "written.pkl").write_bytes(pickle.dumps((scene, final)))
+
+    root = built_once(tmp_path_factory, "free_field_model", build)
+    scene, final = pickle.loads((root / "written.pkl").read_bytes())
+    scene = dataclasses.replace(scene, data_root=root, scene_dir=root / scene.scene_dir.relative_to(scene.data_root))
+    return scene, root / "scene.ckpt", final
 
 
 @pytest.fixture(scope="session")
@@ -68,12 +106,13 @@ def quick_presets(tmp_path_factory) -> dict[str, Path]:
     from avgs.synth.presets import PRESETS
     from avgs.synth.writer import SynthConfig, write_scene
 
-    root = tmp_path_factory.mktemp("synth_presets")
-    (root / "position.json").write_text(json.dumps(FOREIGN_ENTRY))
-    return {
-        preset: write_scene(root, f"{preset}_q", SynthConfig.quick_config(preset, seed=3, workers=1), progress=False).scene_dir
-        for preset in PRESETS
-    }
+    def build(root: Path) -> None:
+        (root / "position.json").write_text(json.dumps(FOREIGN_ENTRY))
+        for preset in PRESETS:
+            write_scene(root, f"{preset}_q", SynthConfig.quick_config(preset, seed=3, workers=1), progress=False)
+
+    root = built_once(tmp_path_factory, "synth_presets", build)
+    return {preset: root / f"{preset}_q" for preset in PRESETS}
 
 
 def _tail_checkpoint() -> dict:

@@ -3,10 +3,12 @@
 The cluster is Ray's own ``cluster_utils.Cluster``: a head (no CPUs: only the driver's
 services) and three worker nodes of one CPU each, every one a real raylet with its own
 object store, on this machine. A node is lost by ``Cluster.remove_node`` (its raylet,
-object store and workers SIGKILLed), and a fresh one joins. The default suite loses the
-node of a one-run sweep; the slow test (two runs, scored) checks that the other run goes on
-and that the report holds every run once. The run folder's lock (:mod:`avgs.sweep.lock`) is
-tested without Ray: it outlives the worker while a subprocess it started still runs.
+object store and workers SIGKILLed), and a fresh one joins. Everything on the cluster is in
+the slow suite (``make test-all``; a minute of CPU, a tenth of the default suite's): a
+one-run sweep whose node is lost, two runs scored with one lost (the other goes on, the report
+holds every run once), a run lost beyond its retries, a local sweep beside a cluster. The run
+folder's lock (:mod:`avgs.sweep.lock`) is tested without Ray in the default suite: it outlives
+the worker while a subprocess it started still runs.
 """
 
 from __future__ import annotations
@@ -74,6 +76,7 @@ def _stage2_iterations(log: Path) -> list[int]:
     return [r["iteration"] for r in records if r.get("stage") == "stage2"]
 
 
+@pytest.mark.slow  # the cluster: see the module's docstring
 def test_a_local_sweep_never_joins_a_cluster_found_on_the_machine(cluster):
     """Without --address the sweep starts a Ray of its own, even with a cluster running here
     (Ray's default would join the newest one it finds, and refuse num_cpus)."""
@@ -143,6 +146,7 @@ def _check_resumed(lost: dict) -> int:
     return resumed
 
 
+@pytest.mark.slow  # the cluster: see the module's docstring
 def test_a_lost_node_s_run_resumes_on_another(cluster, quick_scene, tmp_path):
     """One run; its node is killed after a periodic checkpoint (--retries 0: a lost node is not a
     failure of the run). The sweep finishes with the run resumed on another node, listed once."""
@@ -188,7 +192,7 @@ def test_the_lock_outlives_its_holder_while_a_subprocess_it_started_runs(tmp_pat
     child.wait()
 
 
-@pytest.mark.slow  # a lost node is in the default suite (test_a_lost_node_s_run_resumes_on_another)
+@pytest.mark.slow
 def test_a_run_lost_beyond_its_retries_is_failed_with_why_and_keeps_its_checkpoint(cluster, quick_scene, tmp_path,
                                                                                      monkeypatch):
     """The driver's side: a run whose node is lost once more than Ray may place it again ends

@@ -43,15 +43,9 @@ def small_config(iterations: int):
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    """A scene with 48 training poses and a model trained on it for 200 iterations."""
-    root = tmp_path_factory.mktemp("scene")
-    scene = write_scene(root, n_train=48, n_val=8, seed=0)
-    out = root / "scene.ckpt"
-    cfg = small_config(200)
-    cfg.eval_every = cfg.checkpoint_every = 50
-    final = train_scene(scene.scene_dir, out, cfg, progress=False, initial_points=random_points())
-    return scene, out, final
+def trained(free_field_model):
+    """(the written scene, the checkpoint, the final record) of 200 iterations on 48 poses (conftest)."""
+    return free_field_model
 
 
 def test_training_writes_checkpoint_log_and_curves(trained):

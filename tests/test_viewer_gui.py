@@ -5,38 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import soundfile as sf
-import torch
 
 pytest.importorskip("pytestqt")
 from PySide6 import QtCore, QtWidgets  # noqa: E402
 
-from avgs.acoustics.points import AudioPoints  # noqa: E402
-from avgs.train.pipeline import quick_config, train_scene  # noqa: E402
 from avgs_viewer import colors  # noqa: E402
 from avgs_viewer.refine import SEAM_SECONDS, periods_before  # noqa: E402
 from avgs_viewer.control_panel import HEARD_TEXT  # noqa: E402
 from avgs_viewer.window import MainWindow  # noqa: E402
-from rwavs_writer import write_scene  # noqa: E402
 
 pytestmark = pytest.mark.gui
 
 
 @pytest.fixture(scope="module")
-def trained_ckpt(tmp_path_factory):
-    """200 stage-2 iterations on a free-field scene (the ear facing the source is louder): ~10 s."""
-    torch.set_num_threads(1)
-    root = tmp_path_factory.mktemp("gui_scene")
-    scene = write_scene(root, n_train=48, n_val=8, seed=0)
-    cfg = quick_config()
-    cfg.acoustic.iterations, cfg.acoustic.binauralizer_width = 200, 64
-    cfg.points.densify_every, cfg.points.prune_every = 40, 120
-    cfg.eval_every = cfg.checkpoint_every = 200
-    cfg.log_every = 50
-    g = torch.Generator().manual_seed(0)
-    points = AudioPoints(torch.rand(600, 3, generator=g) * 2 - 1, torch.randn(600, 52, generator=g))
-    out = root / "scene.ckpt"
-    train_scene(scene.scene_dir, out, cfg, progress=False, initial_points=points)
-    return out
+def trained_ckpt(free_field_model):
+    """200 stage-2 iterations on a free-field scene (the ear facing the source is louder; conftest)."""
+    return free_field_model[1]
 
 
 @pytest.fixture

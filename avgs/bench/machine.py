@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.metadata
 import os
 import platform
 import shlex
@@ -38,10 +39,8 @@ def machine_info() -> dict:
     }
     if hasattr(os, "getloadavg"):  # other processes on a shared machine skew every timing
         info["load_average_1m_at_start"] = round(os.getloadavg()[0], 2)
-    try:
-        import pyroomacoustics
-
-        info["pyroomacoustics"] = pyroomacoustics.__version__
-    except ImportError:  # pragma: no cover - a required dependency
+    try:  # the installed version, without importing the package (1.5 s)
+        info["pyroomacoustics"] = importlib.metadata.version("pyroomacoustics")
+    except importlib.metadata.PackageNotFoundError:  # pragma: no cover - a required dependency
         pass
     return info

@@ -85,7 +85,8 @@ def plot_curves(records: list[dict], path: str | Path) -> Path:
     axes[2].set_title("audio points")
     for ax in axes:
         ax.set_xlabel("iteration")
-    fig.tight_layout()
+    # Fixed margins: tight_layout measured every tick label, 0.4 s of a run's last second.
+    fig.subplots_adjust(left=0.075, right=0.99, bottom=0.15, top=0.91, wspace=0.3)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     return path
