@@ -3,8 +3,9 @@
 # suite headless (pytest-xvfb starts its own Xvfb for the GUI tests; no display or sound
 # card needed). Extra arguments go to pytest; the slow training runs are left out unless
 # you pass `-m slow` or `-m ""`. Two worker processes (pytest-xdist; AVGS_TEST_WORKERS=N, or
-# `-n 0` for one process), one torch thread each: on 2 cores the default suite takes 4.5-5.5 min
-# by the host's speed (the same run cost 8.6-10.8 min of CPU on one machine within an hour).
+# `-n 0` for one process), one torch thread each: on 2 cores the default suite takes 4:45 on the
+# slower of our hosts (8.4 min of CPU; 2026-11-29). The scenes and models several test files share
+# are built once for both workers (tests/built_once.py); a third worker gains nothing on 2 cores.
 set -euo pipefail
 here="$(cd "$(dirname "$0")/.." && pwd)"
 bash "$here/scripts/setup.sh"
