@@ -64,7 +64,10 @@ class Binauralizer(nn.Module):
         self.cfg = cfg
         self.n_freq = n_freq
         self.width = width
-        self.register_buffer("freq_query", torch.linspace(-0.99, 0.99, n_freq)[:, None], persistent=False)  # [F, 1]
+        # On the CPU even under a meta device (checkpoint validation builds B there): a meta linspace
+        # imports sympy, a second of every process that reads a checkpoint.
+        self.register_buffer("freq_query", torch.linspace(-0.99, 0.99, n_freq, device="cpu")[:, None],
+                             persistent=False)  # [F, 1]
         self.position_dim = encoded_dim(2, cfg.position_frequencies)  # 18 by default
         self.query_proj = nn.Linear(self.position_dim + encoded_dim(1, cfg.pe_frequencies), width)
         self.context_proj = nn.Linear(context_dim, width) if context_dim else None

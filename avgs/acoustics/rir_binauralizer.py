@@ -135,8 +135,13 @@ class RIRBinauralizer(nn.Module):
         self.n_freq, self.n_frames, self.width = n_freq, n_frames, W
         self.register_buffer("mean", torch.zeros(2, n_freq, n_frames))  # [2, F, N] training mean log magnitude
         self.register_buffer("log_floor", torch.tensor(-30.0))  # log of the smallest target magnitude
-        self.register_buffer("time_query", torch.linspace(-0.99, 0.99, n_frames)[:, None], persistent=False)  # [N, 1]
-        self.register_buffer("frame_seconds", torch.arange(n_frames) * float(hop_seconds), persistent=False)  # [N]
+        # On the CPU even under a meta device (checkpoint validation builds B there): a meta linspace or
+        # multiply imports sympy and torch._dynamo, 2.5 s of every process that reads a checkpoint.
+        cpu = torch.device("cpu")
+        self.register_buffer("time_query", torch.linspace(-0.99, 0.99, n_frames, device=cpu)[:, None],
+                             persistent=False)  # [N, 1]
+        self.register_buffer("frame_seconds", torch.arange(n_frames, device=cpu) * float(hop_seconds),
+                             persistent=False)  # [N]
         self.duration = max(n_frames * float(hop_seconds), 1e-9)  # T, seconds
         self.position_dim = encoded_dim(3, cfg.position_frequencies)
         self.direction_dim = 4 * cfg.direction_harmonics

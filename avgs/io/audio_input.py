@@ -31,7 +31,6 @@ def read_mono_noted(path: str | Path, sample_rate: int, max_seconds: float | Non
     """:func:`read_mono` and what it changed, in words: a note each for a down-mix, a resampling
     and a cut (``["down-mixed 2 channels to mono", "resampled 44100 Hz to 22050 Hz", ...]``)."""
     import soundfile as sf
-    from scipy.signal import resample_poly
 
     path = Path(path)
     if not path.is_file():
@@ -61,6 +60,8 @@ def read_mono_noted(path: str | Path, sample_rate: int, max_seconds: float | Non
     x = x[:, 0] if x.shape[1] == 1 else x.mean(axis=1)  # [T]
     if sr != sample_rate:
         g = gcd(int(sr), int(sample_rate))
+        from scipy.signal import resample_poly  # imported only here: scipy.signal costs a second or two
+
         x = resample_poly(x, sample_rate // g, int(sr) // g).astype(np.float32)
     if max_seconds is not None:
         x = x[: int(max_seconds * sample_rate)]
