@@ -3,7 +3,8 @@
 Checkpoint validation builds the networks on PyTorch's meta device; a meta ``linspace`` or
 multiply there imported sympy and ``torch._dynamo`` (1 s for a binaural checkpoint, 2.5 s for
 the demo's, in every ``avgs`` command, the explorer and each flythrough). Reading a clip at the
-scene's rate imported ``scipy.signal`` for a resampling it did not do (2 s).
+scene's rate imported ``scipy.signal`` for a resampling it did not do, and the explorer's window
+for the ENV metric it never computes (1-2 s). benchmarks/startup.md has the figures.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import soundfile as sf
 DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
 PROBE = """
 import json, sys
+import avgs_viewer.window  # the explorer's modules (no display needed to import them)
 from avgs.io.audio_input import read_mono
 from avgs.io.checkpoint import load_checkpoint
 for path in sys.argv[2:]:
@@ -29,7 +31,7 @@ print(json.dumps(sorted(m for m in ("sympy", "torch._dynamo", "scipy.signal") if
 """
 
 
-def test_reading_checkpoints_and_a_clip_imports_neither_sympy_dynamo_nor_scipy_signal(one_source_ckpt, tmp_path):
+def test_the_explorer_reading_checkpoints_and_a_clip_imports_neither_sympy_dynamo_nor_scipy_signal(one_source_ckpt, tmp_path):
     clip = tmp_path / "clip.wav"
     sf.write(clip, np.zeros(2205, np.float32), 22050)
     checkpoints = [str(one_source_ckpt)] + ([str(DEMO)] if DEMO.is_file() else [])  # binaural, and the demo's RIR

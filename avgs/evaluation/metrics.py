@@ -49,7 +49,6 @@ import warnings
 
 import numpy as np
 import torch
-from scipy.signal import hilbert
 
 from avgs import dsp
 from avgs.config import STFT, STFTConfig
@@ -110,6 +109,8 @@ def mag_spectrogram(pred_mag, gt, stft: STFTConfig = STFT) -> float:
 
 def envelope(x) -> np.ndarray:
     """Hilbert amplitude envelope ``|hilbert(x)|`` along the last axis, ``[..., T]``."""
+    from scipy.signal import hilbert  # here: scipy.signal takes a second to import (the explorer needs no ENV)
+
     return np.abs(hilbert(_numpy(x), axis=-1))
 
 
