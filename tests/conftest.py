@@ -44,55 +44,50 @@ def quick_rir_scene(tmp_path_factory) -> Path:
     return built_once(tmp_path_factory, "rir_quick", build) / "quick_rect"
 
 
-@pytest.fixture(scope="session")
-def one_source_ckpt(tmp_path_factory) -> Path:
-    """A checkpoint of the binaural task (one source position: ``source_aware`` False): 120
-    stage-2 iterations on a free-field scene in the RWAVS layout; a few seconds."""
+def train_free_field(root: Path, n_train: int, n_val: int, seed: int, iterations: int, prune_every: int,
+                     eval_every: int, log_every: int):
+    """A free-field scene of ``rwavs_writer`` in ``root`` (the ear facing the source is louder) and a
+    binaural-task model trained on it from 600 random points, ``root/scene.ckpt``: (the written
+    scene, the final record)."""
     import torch
 
     from avgs.acoustics.points import AudioPoints
     from avgs.train.pipeline import quick_config, train_scene
     from rwavs_writer import write_scene as write_rwavs
 
+    scene = write_rwavs(root, n_train=n_train, n_val=n_val, seed=seed)
+    cfg = quick_config()
+    cfg.acoustic.iterations, cfg.acoustic.binauralizer_width = iterations, 64
+    cfg.points.densify_every, cfg.points.prune_every = 40, prune_every
+    cfg.eval_every = cfg.checkpoint_every = eval_every
+    cfg.log_every = log_every
+    g = torch.Generator().manual_seed(0)
+    points = AudioPoints(torch.rand(600, 3, generator=g) * 2 - 1, torch.randn(600, 52, generator=g))
+    return scene, train_scene(scene.scene_dir, root / "scene.ckpt", cfg, progress=False, initial_points=points)
+
+
+@pytest.fixture(scope="session")
+def one_source_ckpt(tmp_path_factory) -> Path:
+    """A checkpoint of the binaural task (one source position: ``source_aware`` False): 120
+    stage-2 iterations on a free-field scene in the RWAVS layout; a few seconds."""
     def build(root: Path) -> None:
-        scene = write_rwavs(root, n_train=32, n_val=4, seed=1)
-        cfg = quick_config()
-        cfg.acoustic.iterations, cfg.acoustic.binauralizer_width = 120, 64
-        cfg.points.densify_every, cfg.points.prune_every = 40, 100
-        cfg.eval_every = cfg.checkpoint_every = 120
-        cfg.log_every = 60
-        g = torch.Generator().manual_seed(0)
-        points = AudioPoints(torch.rand(600, 3, generator=g) * 2 - 1, torch.randn(600, 52, generator=g))
-        train_scene(scene.scene_dir, root / "scene.ckpt", cfg, progress=False, initial_points=points)
+        train_free_field(root, n_train=32, n_val=4, seed=1, iterations=120, prune_every=100, eval_every=120,
+                         log_every=60)
 
     return built_once(tmp_path_factory, "one_source_scene", build) / "scene.ckpt"
 
 
 @pytest.fixture(scope="session")
 def free_field_model(tmp_path_factory):
-    """A free-field scene of ``rwavs_writer`` (48 training poses, the ear facing the source louder)
-    and a model trained on it for 200 stage-2 iterations, evaluated every 50: (the written
-    scene, the checkpoint, the final record). Read only."""
+    """A free-field scene (48 training poses) and a model trained on it for 200 stage-2 iterations,
+    evaluated every 50: (the written scene, the checkpoint, the final record). Read only."""
     import dataclasses
     import pickle
 
-    import torch
-
-    from avgs.acoustics.points import AudioPoints
-    from avgs.train.pipeline import quick_config, train_scene
-    from rwavs_writer import write_scene as write_rwavs
-
     def build(root: Path) -> None:
-        scene = write_rwavs(root, n_train=48, n_val=8, seed=0)
-        cfg = quick_config()
-        cfg.acoustic.iterations, cfg.acoustic.binauralizer_width = 200, 64
-        cfg.points.densify_every, cfg.points.prune_every = 40, 120
-        cfg.eval_every = cfg.checkpoint_every = 50
-        cfg.log_every = 10
-        g = torch.Generator().manual_seed(0)
-        points = AudioPoints(torch.rand(600, 3, generator=g) * 2 - 1, torch.randn(600, 52, generator=g))
-        final = train_scene(scene.scene_dir, root / "scene.ckpt", cfg, progress=False, initial_points=points)
-        (root / "written.pkl").write_bytes(pickle.dumps((scene, final)))
+        written = train_free_field(root, n_train=48, n_val=8, seed=0, iterations=200, prune_every=120, eval_every=50,
+                                   log_every=10)
+        (root / "written.pkl").write_bytes(pickle.dumps(written))
 
     root = built_once(tmp_path_factory, "free_field_model", build)
     scene, final = pickle.loads((root / "written.pkl").read_bytes())
