@@ -4,9 +4,9 @@
     python scripts/compare_trees.py /tmp/before render assets/demo/scene.ckpt --listener 1 1 1 ...
     python scripts/compare_trees.py .           render assets/demo/scene.ckpt --listener 1 1 1 ...
 
-``PYTHONPATH=/tmp/before`` does not do this: the editable install's import finder (``pip
-install -e``) comes before ``sys.path`` and imports this checkout's ``avgs`` whatever the
-path says. This script drops that finder first and checks which tree it imported.
+The tree goes first on ``sys.path`` and the script checks that its ``avgs`` is the one
+imported: ``PYTHONPATH=/tmp/before python -c ...`` run from the checkout would import the
+checkout's, since the current folder comes before ``PYTHONPATH`` there.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ def main() -> int:
         return 2
     t0 = time.perf_counter()
     tree = str(Path(sys.argv[1]).resolve())
-    sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in repr(f).lower()]
     sys.path.insert(0, tree)
     import avgs
 
