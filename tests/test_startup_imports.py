@@ -31,7 +31,8 @@ print(json.dumps(sorted(m for m in ("sympy", "torch._dynamo", "scipy.signal") if
 """
 
 
-def test_the_explorer_reading_checkpoints_and_a_clip_imports_neither_sympy_dynamo_nor_scipy_signal(one_source_ckpt, tmp_path):
+def test_the_explorer_reading_checkpoints_and_a_clip_imports_neither_sympy_dynamo_nor_scipy_signal(
+        one_source_ckpt, tmp_path):
     clip = tmp_path / "clip.wav"
     sf.write(clip, np.zeros(2205, np.float32), 22050)
     checkpoints = [str(one_source_ckpt)] + ([str(DEMO)] if DEMO.is_file() else [])  # binaural, and the demo's RIR
