@@ -84,6 +84,8 @@ class SceneCanvas(QtInteractor):
     def set_dragging(self, dragging: bool) -> None:
         """A handle drag starts (renders spaced by DRAG_FRAME_S) or ends (a waiting render goes now)."""
         self.dragging = bool(dragging)
+        if not dragging:  # the released pose's sound gets a whole HOLD_MAX_S, not what the drag's moves left
+            self._held_since = None
         if not dragging and self._frame_gate.isActive():
             self._frame_gate.stop()
             self.update()

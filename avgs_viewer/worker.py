@@ -235,8 +235,9 @@ class LiveAudio:
 
     def _render(self, request: PoseRequest) -> tuple[RenderResult, tuple]:
         """The first source's filter and the other sources' ((id, RenderResult), ...); on either lane.
-        A newer pose submitted meanwhile stops it after the network (the worker's ``stopped``): the CPU
-        goes to the pose the user is at."""
+        A newer pose submitted meanwhile stops it at the next of its stage's checks (before and after the
+        network, after the direct sound, before its placement: the worker's ``stopped``): the CPU goes to
+        the pose the user is at."""
         pose = request.pose
 
         def stale() -> bool:

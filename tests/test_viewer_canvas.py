@@ -52,3 +52,23 @@ def test_a_paint_waits_while_the_audio_path_is_busy_then_draws(qtbot, canvas):
     canvas.render()
     qtbot.waitUntil(lambda: canvas.frames == before + 2, timeout=2_000)
     assert time.perf_counter() - start >= HOLD_MAX_S * 0.9
+
+
+def test_the_release_of_a_drag_gives_its_pose_a_whole_hold(qtbot, canvas):
+    """A drag's moves kept the audio path busy for most of a hold when the handle is let go: the released
+    pose's filter still gets a whole HOLD_MAX_S before a paint takes the cores (the hold's clock starts
+    again at the release), and the frame is drawn once the filter is made."""
+    busy = {"on": True}
+    canvas.hold = lambda: busy["on"]
+    qtbot.wait(100)
+    before = canvas.frames
+    canvas.set_dragging(True)
+    canvas.render()  # a move's frame, held behind the moves' filters
+    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.9))
+    assert canvas.frames == before
+    canvas.set_dragging(False)  # the release: its pose's filter is being made
+    canvas.render()
+    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.6))  # past the drag's hold (due 0.1 HOLD_MAX_S after the release)
+    assert canvas.frames == before
+    busy["on"] = False
+    qtbot.waitUntil(lambda: canvas.frames == before + 1, timeout=2_000)

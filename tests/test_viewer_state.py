@@ -494,10 +494,20 @@ def test_a_filter_asked_to_stop_gives_up_and_one_never_asked_is_unchanged():
     p, src = lo + (hi - lo) * 0.3, lo + (hi - lo) * 0.7
     asked = []
     kept = r.binaural_filter(p, 30.0, source=src, stop=lambda: asked.append(1) or False)
-    assert len(asked) == 2  # after the network, and before the direct sound is placed
+    assert len(asked) == 5  # at the start, before and after the network, after the direct sound, before its placement
     np.testing.assert_array_equal(kept.impulse, r.binaural_filter(p, 30.0, source=src).impulse)
     with pytest.raises(Stopped):
         r.binaural_filter(p, 30.0, source=src, stop=lambda: True)
+    # a newer pose that comes while the vicinities and contexts are made keeps the network from running
+    net = r.task_model.model.binauralizer
+    ran, seen = [], []
+    net.forward = lambda *a, _forward=net.forward, **k: ran.append(1) or _forward(*a, **k)
+    try:
+        with pytest.raises(Stopped):
+            r.binaural_filter(p, 30.0, source=src, stop=lambda: bool(seen) or seen.append(1) or False)
+    finally:
+        del net.forward
+    assert seen and not ran
 
 
 def test_binaural_filters_on_two_threads_equal_those_made_one_after_another():

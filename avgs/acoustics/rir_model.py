@@ -122,15 +122,17 @@ class RIRModel(AVGSModel):
         return torch.cat([c_s, c_l], dim=-1), listener_idx, source_idx
 
     def log_magnitudes(self, listener: torch.Tensor, yaw: torch.Tensor, source: torch.Tensor,
-                       cache: ModelCache | None = None, cached_source=None):
+                       cache: ModelCache | None = None, cached_source=None, stop: Callable[[], bool] | None = None):
         """(log magnitudes [B, 2, F, N], listener vicinity [B, k], source vicinity [B, k]).
 
         listener, source [B, 3] normalised (source may be [3]: one for all); yaw [B] radians.
+        ``stop``: asked between the contexts and the network (:class:`avgs.threads.Stopped`).
         """
         if source.dim() == 1:
             source = source[None].expand(listener.shape[0], -1)
         theta = signed_direction(listener, yaw, source)  # [B]
         context, lis_idx, src_idx = self.contexts(listener, source, cache, cached_source)
+        stopped(stop, "log_magnitudes")
         t = None if cache is None else cache.frequency
         return self.binauralizer(listener, source, theta, yaw, context, t, walls=self.walls(listener, source)), lis_idx, src_idx
 

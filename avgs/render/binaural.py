@@ -62,6 +62,7 @@ class BinauralTaskModel:
     # -- one pose --------------------------------------------------------------------------
 
     def response(self, pose: Pose, impulse: bool = False, stop=None) -> Response:
+        stopped(stop, "the pose's response")
         masks = self.model.masks(pose.listener, pose.theta, pose.source, self._source_context(pose.source), self.cache)
         stopped(stop, "the pose's response")
         check_finite((masks.mixture, masks.difference, masks.reverb, masks.decay), self.where,

@@ -56,13 +56,15 @@ class ImpulseResponseTaskModel:
 
     def response(self, pose: Pose, impulse: bool = True, stop=None) -> Response:
         """The predicted response (always: it is what the gains are read from) and its ear gains."""
+        stopped(stop, "the pose's response")
         yaw = self._yaw([pose.yaw], pose.listener)  # [1]
         log_mag, lis_idx, src_idx = self.model.log_magnitudes(pose.listener, yaw, pose.source, self.cache,
-                                                              self._source_context(pose.source))
+                                                              self._source_context(pose.source), stop=stop)
         stopped(stop, "the pose's response")
         mag = self.model.magnitudes(log_mag.float()).cpu()  # [1, 2, F, N]
         rc = self.rir
         direct = self.model.direct_sound(pose.listener, yaw, pose.source)
+        stopped(stop, "the pose's response")
         h = response_waveform(mag, rc.length, self.stft, rc.phase, rc.phase_iterations, direct=direct,
                               stop=stop)[0]  # [2, L]
         gains = ear_transfer(mag, self.stft).double()  # [1, 2, F]
