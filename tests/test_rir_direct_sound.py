@@ -546,3 +546,24 @@ def test_behind_a_wall_the_first_sound_comes_by_the_reflection_that_passes_the_o
     assert direction.arrival.item() == pytest.approx(3.5 / c) and direction.delays[0].tolist() == pytest.approx([0.0, tau])
     assert straight.arrival.item() == pytest.approx(3.5 / c)
     assert straight.delays[0].abs().max().item() < 1e-6  # straight ahead: no ITD
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_points_on_a_path_by_the_compiled_loop_are_the_matrix_products_count(dtype):
+    """points_on_path on the CPU (one compiled loop, float64) counts what its torch reference (the CUDA path,
+    matrix products in the points' precision) counts, with and without a mask of the points that may count,
+    for segments of every length (none shorter than twice the margin counts anything)."""
+    from avgs.acoustics.line_of_sight import points_on_path, points_on_path_torch
+
+    rng = np.random.default_rng(11)
+    points = torch.from_numpy(rng.uniform(-2.0, 2.0, (3000, 3))).to(dtype)
+    a = torch.from_numpy(rng.uniform(-2.0, 2.0, (64, 3)))
+    b = a + torch.from_numpy(rng.normal(0.0, 1.0, (64, 3)))
+    keep = torch.from_numpy(rng.random((3000, 64)) < 0.7)
+    for mask in (None, keep):
+        fast = points_on_path(points, a, b, 0.2, 0.3, mask)
+        reference = points_on_path_torch(points, a, b, 0.2, 0.3, mask)
+        assert fast.dtype == torch.int64 and fast.shape == (64,)
+        assert torch.equal(fast, reference) and int(fast.sum()) > 100
+    short = points_on_path(points, a, a + 0.1, 0.2, 0.3)
+    assert not bool(short.any())

@@ -27,7 +27,7 @@ from avgs.io.checkpoint import untrained_checkpoint
 from avgs.config import STFT, AcousticConfig, SynthesisConfig, TrainConfig
 from avgs.data.frame import SceneFrame
 from avgs.render.renderer import HEADROOM_DB, HeadroomLimited, OneSourceModel, PositionClamped, SceneRenderer
-from avgs.acoustics.synthesis import Masks, ear_gains
+from avgs.acoustics.synthesis import ear_gains
 from avgs.acoustics.convolution import BlockConvolver, ConvolutionStream
 from avgs.train.losses import volume_loss
 
@@ -432,3 +432,24 @@ def test_audio_files_with_absurd_headers_are_refused(tmp_path):
     ok = tmp_path / "ok.wav"
     sf.write(ok, noise(4410), 44100)
     assert read_mono(ok, SR).shape == (2205,)
+
+
+def test_all_finite_is_isfinite_all_whatever_the_sum_does():
+    """The renderer's finiteness check by the sum agrees with ``isfinite(t).all()``: a NaN or an Inf anywhere
+    is caught (Infs of both signs too, whose sum is NaN), and finite values whose sum overflows are not
+    taken for an Inf."""
+    import torch
+
+    from avgs.render.tasks import all_finite
+
+    rng = torch.Generator().manual_seed(0)
+    x = torch.randn(2, 20096, generator=rng)
+    cases = [x, torch.zeros(0), torch.full((10,), 3e38), torch.randn(4, dtype=torch.complex64), x.double()]
+    for value in (float("nan"), float("inf"), -float("inf")):
+        y = x.clone()
+        y[1, 12345] = value
+        cases.append(y)
+    cases.append(torch.tensor([float("inf"), -float("inf")]))
+    for t in cases:
+        assert all_finite(t) == bool(torch.isfinite(t).all())
+    assert all_finite(torch.full((10,), 3e38)) and not all_finite(cases[-1])

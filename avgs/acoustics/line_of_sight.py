@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+from numba import njit
 
 RADIUS_M = 0.2
 "Metres: points this close to the path count against it."
@@ -37,9 +38,55 @@ MIN_ACCURACY = 0.8
 def points_on_path(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor, radius: float, margin: float,
                    keep: torch.Tensor | None = None) -> torch.Tensor:
     """How many of ``points [P, 3]`` lie within ``radius`` of each segment ``a [B, 3]`` -> ``b [B, 3]``,
-    not within ``margin`` of its ends (all in one unit): ``[B]`` int64. In ``points``' precision, by
-    matrix products (the explorer asks once per pose of a drag). ``keep [P, B]`` (bool): only those
-    points count for each segment."""
+    not within ``margin`` of its ends (all in one unit): ``[B]`` int64. ``keep [P, B]`` (bool): only
+    those points count for each segment.
+
+    On the CPU one compiled loop over the points and segments, in float64 (:func:`_count_near`; the
+    explorer asks this a few times per pose: 10 torch passes over 8,000 points took 0.3 ms); elsewhere
+    (CUDA) :func:`points_on_path_torch`, in ``points``' precision, which is also the loop's reference in
+    the tests (they agree but for a point within rounding of the radius or the margins)."""
+    tensors = (points, a, b) if keep is None else (points, a, b, keep)
+    if not all(t.device.type == "cpu" for t in tensors):
+        return points_on_path_torch(points, a, b, radius, margin, keep)
+    out = np.zeros(a.shape[0], dtype=np.int64)
+    k = np.zeros((0, 0), dtype=np.bool_) if keep is None else np.ascontiguousarray(keep.detach().numpy())
+    xyz = np.ascontiguousarray(points.detach().numpy().T, dtype=np.float64)  # [3, P]
+    _count_near(xyz, _f64(a), _f64(b), float(radius), float(margin), k, out)
+    return torch.from_numpy(out)
+
+
+def _f64(t: torch.Tensor) -> np.ndarray:
+    return np.ascontiguousarray(t.detach().to(torch.float64).numpy())
+
+
+@njit(cache=True, nogil=True, error_model="numpy", boundscheck=False)
+def _count_near(xyz, a, b, radius, margin, keep, out):  # pragma: no cover - compiled
+    """out[j] = the points xyz [3, P] (coordinate-major) within radius of segment a[j] -> b[j] [B, 3], farther
+    than margin (along it) from both its ends; keep [P, B] (bool) or [0, 0] (all count). Branch-free over
+    the points, so the loop is vectorised."""
+    r2 = radius * radius
+    px, py, pz = xyz[0], xyz[1], xyz[2]
+    masked = keep.shape[0] > 0
+    for j in range(a.shape[0]):
+        ax, ay, az = a[j, 0], a[j, 1], a[j, 2]
+        ux, uy, uz = b[j, 0] - ax, b[j, 1] - ay, b[j, 2] - az
+        length = max(np.sqrt(ux * ux + uy * uy + uz * uz), 1e-12)
+        ux, uy, uz = ux / length, uy / length, uz / length
+        far = length - margin
+        count = 0
+        for i in range(px.shape[0]):
+            dx, dy, dz = px[i] - ax, py[i] - ay, pz[i] - az
+            along = dx * ux + dy * uy + dz * uz
+            near = (along > margin) & (along < far) & (dx * dx + dy * dy + dz * dz - along * along < r2)
+            if masked:
+                near = near & keep[i, j]
+            count += near
+        out[j] = count
+
+
+def points_on_path_torch(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor, radius: float, margin: float,
+                         keep: torch.Tensor | None = None) -> torch.Tensor:
+    """:func:`points_on_path` by matrix products, on ``points``' device and in its precision."""
     a, b = a.to(points.dtype), b.to(points.dtype)
     ab = b - a  # [B, 3]
     length = torch.linalg.vector_norm(ab, dim=-1).clamp_min(1e-12)  # [B]
