@@ -216,7 +216,7 @@ class RIRConfig:
     decay_weight: float = 1.0
     "Weight of the loss on each ear's energy decay curve (Schroeder; whole band and octave bands; in nats re its start, down to 50 dB): what T60, EDT and C50 read. Without it the per-frame log-magnitude loss averages the decays in the log domain and the predicted T60 comes out short (two_rooms, held out: -17 % bias, T60 error 18.5 %; with it and the energy loss 13.0 %). 0: off."
     direct_sound: bool = True
-    "Put the direct sound where geometry says: nothing before distance / c, both ears coherent over its first 5 ms with the lagging ear delayed by the head's ITD (direct_itd; its first 5 ms the leading ear's, delayed and scaled), the early energy kept (avgs.acoustics.rir_model.place_direct_sound); off: the noise phase from t = 0, the ears independent."
+    "Put the direct sound where geometry says: nothing before distance / c, both ears coherent over its first 5 ms with the lagging ear delayed by the head's ITD (direct_itd; its first 5 ms the leading ear's, delayed and scaled), the early energy kept (avgs.acoustics.direct_placement.place_direct_sound); off: the noise phase from t = 0, the ears independent."
     direct_itd: bool = True
     "With direct_sound: the direct sound's ITD from a law of the source's direction (avgs.acoustics.interaural.itd_law, three sine harmonics) fitted to the early ITDs of the training responses in sight of the source, not from Woodworth's sphere with a fitted scale: a measured head's ITD has its own shape (fewer than 24 such responses: the sphere)."
     direct_ild: bool = True

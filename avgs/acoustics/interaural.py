@@ -221,7 +221,7 @@ def local_correction(features: torch.Tensor, at: torch.Tensor, values: torch.Ten
 
 def direct_level_db(theta: torch.Tensor, distance: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
     """The direct sound's energy ``[...]`` in dB (both ears, over its first milliseconds: what
-    :func:`avgs.acoustics.rir_model.sharpen_direct_sound` makes an impulse of) at directions ``theta``
+    :func:`avgs.acoustics.direct_placement.sharpen_direct_sound` makes an impulse of) at directions ``theta``
     (radians) and distances ``distance`` (> 0, the unit the law was fitted in): ``c0 + c1 cos theta +
     c2 cos 2 theta - 20 log10 distance`` for ``coefficients [3]``.
 

@@ -124,7 +124,8 @@ def random_sources(renderer, n: int, seed: int = 1) -> list[np.ndarray]:
 def measure_source_aware(renderer, repeats: int = 50, progress=None) -> dict:
     """Latency of a source-aware renderer (task rir): render with a new source every call, and its stages."""
     from avgs.acoustics.impulse_response import convolve
-    from avgs.acoustics.rir_model import place_direct_sound, response_waveform
+    from avgs.acoustics.direct_placement import place_direct_sound
+    from avgs.acoustics.rir_model import response_waveform
 
     dev = renderer.device
     mono = test_signal(1.0, renderer.sample_rate)

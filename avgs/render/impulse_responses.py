@@ -7,7 +7,7 @@ Trained on many source positions (``avgs train --task rir``), so the source is a
 apply), a stream is a :class:`~avgs.acoustics.convolution.ConvolutionStream`, and a pose's
 ``gains`` are the response's long-term ear gains (:func:`~avgs.acoustics.rir_model.ear_transfer`).
 With ``RIRConfig.direct_sound`` the direct sound is placed by geometry: nothing before distance /
-c, the lagging ear the spherical head's ITD later (:func:`~avgs.acoustics.rir_model.place_direct_sound`).
+c, the lagging ear the spherical head's ITD later (:func:`~avgs.acoustics.direct_placement.place_direct_sound`).
 Continuous yaw: the network reads the facing through cos / sin of the yaw and of the direction
 to the source; the yaw is taken modulo 360 first, so yaw 360 and yaw 0 give the same response
 exactly, and between the four trained facings the network interpolates smoothly. A response

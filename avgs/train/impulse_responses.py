@@ -36,7 +36,8 @@ import torch
 from avgs import dsp
 from avgs.acoustics.interaural import (DEFAULT_SCALE, fit_direct_level, fit_ild_law, fit_itd_law, fit_local_scale,
                                       fit_scale, ild_law, local_features)
-from avgs.acoustics.rir_model import FADE_SAMPLES, IMPULSE_SECONDS, RIRModel, response_waveform
+from avgs.acoustics.direct_placement import FADE_SAMPLES, IMPULSE_SECONDS
+from avgs.acoustics.rir_model import RIRModel, response_waveform
 from avgs.config import STFTConfig, TrainConfig
 from avgs.data.frame import signed_direction
 from avgs.data.rir import RIRScene
@@ -263,7 +264,7 @@ def speed_of_sound(rir_scene) -> float:
 
 def direct_energy(h: np.ndarray, fs: float, itd: float, first: int | None = None) -> float:
     """Both ears' energy of a response ``h [2, L]`` over its direct sound's stretch, as
-    :func:`~avgs.acoustics.rir_model.sharpen_direct_sound` takes it: from FADE_SAMPLES before the onset to
+    :func:`~avgs.acoustics.direct_placement.sharpen_direct_sound` takes it: from FADE_SAMPLES before the onset to
     IMPULSE_SECONDS after, and the ITD ``itd`` (seconds) longer, which the lagging ear's stretch starts later.
     ``first``: the onset sample when the caller has it (:func:`avgs.evaluation.spatial.onset`)."""
     first = spatial.onset(h) if first is None else int(first)
