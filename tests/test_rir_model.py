@@ -410,3 +410,21 @@ def test_level_against_source_distance_follows_the_simulator(tmp_path):
                                         np.zeros(n)))
     assert np.max(np.abs(pred - truth)) < 2.0, (truth.round(2), pred.round(2))
     assert pred[0] > pred[-1] + 1.0  # it falls with distance
+
+
+def test_the_noise_spectrogram_made_frame_major_is_the_product_transposed():
+    """response_waveform's spectrogram, written frame-major in one pass, equals the noise phase times the
+    magnitudes transposed, bit for bit: without a direct sound, and with one per pose whose coherent frames
+    run from none to past the last frame."""
+    from avgs.acoustics.direct_placement import DirectSound
+    from avgs.acoustics.rir_model import _noise_spectrogram, _phases
+
+    g = torch.Generator().manual_seed(4)
+    mag = torch.rand(5, 2, STFT.n_fft // 2 + 1, 40, generator=g)  # [B, 2, F, N]
+    arrival = torch.tensor([0.0, 0.01, 0.05, 0.2, 5.0], dtype=torch.float64)  # s: the last past the 40 frames
+    direct = DirectSound(arrival, torch.zeros(5, 2, dtype=torch.float64))
+    for d in (None, direct):
+        want = (mag * _phases(mag.shape[-2], mag.shape[-1], STFT, d)).transpose(-1, -2).contiguous()
+        got = _noise_spectrogram(mag, STFT, d)
+        assert got.is_contiguous() and torch.equal(got, want)
+    assert not torch.equal(_noise_spectrogram(mag, STFT, direct), _noise_spectrogram(mag, STFT, None))

@@ -293,18 +293,45 @@ def _noise_phase(n_freq: int, n_frames: int) -> torch.Tensor:
     return torch.polar(torch.ones_like(angle), angle).to(torch.complex64)
 
 
+def _shared_frames(direct: DirectSound, n_frames: int, stft: STFTConfig) -> torch.Tensor:
+    """``[B]`` int64: how many first frames overlap the direct sound's first :data:`DIRECT_SECONDS` (where the
+    ears share their phase), at most ``n_frames``."""
+    hop = stft.hop_length / stft.sample_rate
+    arrival = direct.arrival.detach().double().cpu()  # [B]: the phases are made on the CPU
+    shared = torch.ceil((arrival + DIRECT_SECONDS + 0.5 * stft.n_fft / stft.sample_rate) / hop).long()  # [B]
+    return shared.clamp(0, n_frames)
+
+
 def _phases(n_freq: int, n_frames: int, stft: STFTConfig, direct: DirectSound | None) -> torch.Tensor:
     """The noise phase ``[2, F, N]``, or with ``direct`` ``[B, 2, F, N]``: the right ear takes the left's
     phase in the frames that overlap the direct sound's first :data:`DIRECT_SECONDS` (coherent ears)."""
     base = _noise_phase(n_freq, n_frames)
     if direct is None:
         return base
-    hop = stft.hop_length / stft.sample_rate
-    arrival = direct.arrival.detach().double().cpu()  # [B]: the phases are made on the CPU
-    shared = torch.ceil((arrival + DIRECT_SECONDS + 0.5 * stft.n_fft / stft.sample_rate) / hop).long()  # [B]
-    coherent = torch.arange(n_frames)[None, :] < shared[:, None]  # [B, N]
+    coherent = torch.arange(n_frames)[None, :] < _shared_frames(direct, n_frames, stft)[:, None]  # [B, N]
     right = torch.where(coherent[:, None, :], base[0], base[1])  # [B, F, N]
     return torch.stack([base[0].expand_as(right), right], dim=1)
+
+
+@functools.lru_cache(maxsize=8)
+def _noise_rows(n_freq: int, n_frames: int) -> torch.Tensor:
+    """:func:`_noise_phase` frame-major, ``[2, N, F]`` complex64 (contiguous)."""
+    return _noise_phase(n_freq, n_frames).transpose(-1, -2).contiguous()
+
+
+def _noise_spectrogram(mag: torch.Tensor, stft: STFTConfig, direct: DirectSound | None) -> torch.Tensor:
+    """``mag [..., 2, F, N]`` (float32) with :func:`_phases`, frame-major: ``[..., 2, N, F]`` complex64, made in
+    one pass (the product written frame-major, the coherent frames of the right ear overwritten after): the
+    same numbers as ``(mag * _phases(...)).transpose(-1, -2).contiguous()`` in under half its time."""
+    n_freq, n_frames = mag.shape[-2], mag.shape[-1]
+    rows = _noise_rows(n_freq, n_frames).to(mag.device)  # [2, N, F]
+    frames = mag.transpose(-1, -2)  # [..., 2, N, F] a view
+    out = torch.empty(frames.shape, dtype=torch.complex64, device=mag.device)
+    torch.mul(frames, rows, out=out)
+    if direct is not None:  # [B, 2, F, N]: the right ear takes the left's phase over its first shared frames
+        for b, k in enumerate(_shared_frames(direct, n_frames, stft).tolist()):
+            torch.mul(frames[b, 1, :k], rows[0, :k], out=out[b, 1, :k])
+    return out
 
 
 def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, phase: str = "griffin-lim",
@@ -331,7 +358,6 @@ def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, p
     if phase not in ("noise", "griffin-lim"):
         raise ValueError(f"RIR phase must be 'noise' or 'griffin-lim', got {phase!r}")
     mag = mag.float()
-    spec = mag * _phases(mag.shape[-2], mag.shape[-1], stft, direct).to(mag.device)  # [..., 2, F, N]
     its = iterations if phase == "griffin-lim" else 0
     want = mag.square().sum((-2, -1))  # [..., 2]
     n = mag.shape[-1]
@@ -339,10 +365,11 @@ def response_waveform(mag: torch.Tensor, length: int, stft: STFTConfig = STFT, p
         # the inverse STFT and the STFT of its waveform on one padded signal (frame-major; torch.istft's and
         # torch.stft's to float rounding)
         grid = frame_grid(n, stft, torch.float32, str(mag.device))
-        padded = grid.synthesise(spec.transpose(-1, -2).contiguous())  # [..., 2, padded samples]
+        padded = grid.synthesise(_noise_spectrogram(mag, stft, direct))  # [..., 2, padded samples]
         y = grid.waveform(padded, length)
         rebuilt = grid.analyse(grid.pad_ends(padded, length))  # [..., 2, N, F]
     else:
+        spec = mag * _phases(mag.shape[-2], mag.shape[-1], stft, direct).to(mag.device)  # [..., 2, F, N]
         y = griffin_lim(spec, mag, length, its, momentum, stft).float()  # [..., 2, length]
         rebuilt = dsp.stft(y, stft)
     got = (rebuilt * rebuilt.conj()).real.sum((-2, -1))  # [..., 2] the waveform's STFT energy
