@@ -9,12 +9,14 @@ which subscribes to the state's pose event after the view's handlers (which only
 repaint), so a pose change reaches the engine before anything is drawn; paints wait while its
 filter is on the way (the canvas' ``hold``). Results come back from the worker threads through
 queued signals: the vicinity colours, levels, what is heard and the response panel are updated
-at most every ``SHOW_MS`` while a handle moves. The meters poll the engine's output only while
-sound plays.
+at most every ``SHOW_MS`` while a handle moves, and like the paints, an update waits (at most
+``SHOW_WAIT_MAX_S``) while a filter is on its way (:meth:`AudioPath.sound_pending`). The meters
+poll the engine's output only while sound plays.
 """
 
 from __future__ import annotations
 
+import time
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -35,6 +37,10 @@ if TYPE_CHECKING:  # imported when a scene first needs them
 
 METER_INTERVAL_MS = 500
 SHOW_MS = 150
+SHOW_WAIT_MS = 2
+"While a filter is on its way, a due update of the panels tries again this much later."
+SHOW_WAIT_MAX_S = 0.1
+"Longest a due update of the panels waits for the audio path (so a long drag still shows its poses)."
 
 
 def audio_status_text(message: str | None, sample_rate: int) -> str:
@@ -81,6 +87,7 @@ class AudioPath(QtCore.QObject):
         self._show_timer = QtCore.QTimer(self)
         self._show_timer.setSingleShot(True)
         self._show_timer.timeout.connect(self._show_heard)
+        self._show_held_since: float | None = None  # perf_counter when a due update first waited for the sound
         self._meters_shown: tuple[float, float] | None = None
         self.clip: np.ndarray | None = None  # the whole clip [T] looped now (what Export audio renders)
         # What reading the clip changed (down-mixed, resampled, cut), for as long as it loops.
@@ -119,9 +126,14 @@ class AudioPath(QtCore.QObject):
                               on_error=lambda req, exc: self._bridge.render_failed.emit(req, f"{type(exc).__name__}: {exc}"),
                               on_refined=self._bridge.refined.emit)
         self.live.request()
-        live = self.live
-        engine = self.engine  # sound first: paints wait for the filter and for its first block to leave the engine
-        self.plotter.hold = lambda: not live.worker.wait_idle(0.0) or engine.switch_pending
+        self.plotter.hold = self.sound_pending  # sound first: paints wait for it
+
+    def sound_pending(self) -> bool:
+        """Whether a pose's filter is being made, or waits for its first block to leave the engine: the
+        3D view's paints and the panels' updates wait then (each composes the whole window, which with
+        software GL takes the CPU from the filter and the audio clock)."""
+        live, engine = self.live, self.engine
+        return live is not None and (not live.worker.wait_idle(0.0) or engine.switch_pending)
 
     def read_clip(self, path, sample_rate: int) -> np.ndarray:
         """The clip at ``path`` as the explorer loops it; what reading changed (down-mixed, resampled,
@@ -224,7 +236,16 @@ class AudioPath(QtCore.QObject):
     def _show_heard(self) -> None:
         heard = self._shown_heard
         if self._view is None or self.live is None or heard is None or heard is not self.live.heard:
+            self._show_held_since = None
             return  # a newer pose (or another scene) has replaced it
+        if self.sound_pending():  # the sound first, for at most SHOW_WAIT_MAX_S
+            now = time.perf_counter()
+            if self._show_held_since is None:
+                self._show_held_since = now
+            if now - self._show_held_since < SHOW_WAIT_MAX_S:
+                self._show_timer.start(SHOW_WAIT_MS)
+                return
+        self._show_held_since = None
         self._view.set_vicinity(heard.result.listener_vicinity, heard.result.source_vicinity)
         self.panel.show_levels(*heard.levels)  # the clip through this pose's filter, at full volume
         refined = self.live.refined

@@ -189,6 +189,44 @@ def test_a_pose_passed_through_is_shown_light_and_the_newest_in_full(qtbot, wind
     assert np.array_equal(w.response.summary.impulse, heard.result.impulse) and w.response.summary.t60_s is not None
 
 
+def test_the_panels_wait_for_the_sound(qtbot, window):
+    """A due update of the panels (each composes the whole window) waits while a filter waits for its
+    first block to leave the engine, and goes once it has; and at most SHOW_WAIT_MAX_S, so a long drag
+    whose filters keep coming still shows its poses."""
+    import dataclasses
+    import time
+
+    from avgs_viewer.audio_path import SHOW_WAIT_MAX_S
+
+    w, e = window, window.engine
+    wait_shown(qtbot, w)
+    w.output.close()  # no clock pulls the engine now: the test takes its blocks, as a sound card would
+    heard = w.live.heard
+    src, z = w.state.source, w.state.listener[2]
+    moved = dataclasses.replace(heard.request.pose, listener=(float(src[0]) - 1.2, float(src[1]) + 0.4, float(z)))
+    result = w.renderer.binaural_filter(moved.listener, moved.yaw, source=moved.source)
+    newest = dataclasses.replace(heard, request=dataclasses.replace(heard.request, pose=moved), result=result)
+    e.set_filter(result.impulse, tag=newest.request.seq)  # its first block not out yet
+    assert w.audio_path.sound_pending()
+    w.live.heard = newest
+    w.audio_path._on_rendered(newest)
+    timer = w.audio_path._show_timer
+    qtbot.wait(30)  # the update came due and waits
+    assert timer.isActive() and not np.array_equal(w.response.summary.impulse, result.impulse)
+    e.render_block()  # the filter's first block leaves the engine
+    assert not w.audio_path.sound_pending()
+    qtbot.waitUntil(lambda: not timer.isActive(), timeout=5000)
+    assert np.array_equal(w.response.summary.impulse, result.impulse)
+
+    # A filter that keeps waiting holds the update SHOW_WAIT_MAX_S at most.
+    e.set_filter(heard.result.impulse, tag=heard.request.seq)
+    w.live.heard = heard
+    t0 = time.perf_counter()
+    w.audio_path._on_rendered(heard)
+    qtbot.waitUntil(lambda: np.array_equal(w.response.summary.impulse, heard.result.impulse), timeout=5000)
+    assert time.perf_counter() - t0 >= SHOW_WAIT_MAX_S and w.audio_path.sound_pending()
+
+
 def test_play_response_key_plays_the_response_once_then_the_clip(qtbot, window):
     w, e = window, window.engine
     w.output.close()  # no clock pulls the engine now: the test takes its blocks, as a sound card would
