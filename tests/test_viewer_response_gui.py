@@ -15,7 +15,6 @@ import torch
 pytest.importorskip("pytestqt")
 from PySide6 import QtCore, QtGui, QtWidgets  # noqa: E402
 
-from avgs.cli import main as cli_main  # noqa: E402
 from avgs_viewer import colors  # noqa: E402
 from avgs_viewer.response import column_edges  # noqa: E402
 from avgs_viewer.response_view import DIRECT_COLOUR, EAR_COLOURS  # noqa: E402

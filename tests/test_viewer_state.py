@@ -483,6 +483,45 @@ def test_a_moves_filter_made_stale_by_a_newer_pose_stops_and_the_newest_is_heard
     live.close()
 
 
+def test_a_filter_made_stale_after_its_last_check_is_not_handed_to_the_engine():
+    """The user moves on while a move's filter makes its last stage: the filter is made, but the engine
+    never gets it (its hand-over would take the CPU from the newest pose's filter); the newest is heard."""
+    from avgs_viewer.audio import StreamEngine
+    from avgs_viewer.worker import LiveAudio
+
+    inside, moved_on, old_made = threading.Event(), threading.Event(), threading.Event()
+    made = []
+
+    class Filters:  # never asks ``stop``: as if the newer pose came after the last check
+        def binaural_filter(self, listener, yaw, source=None, stop=None):
+            if listener[0] == 2.0:
+                inside.set()
+                assert moved_on.wait(10)
+            if listener[0] == 3.0:  # the newest takes longer: the stale one is done first
+                assert old_made.wait(10)
+                time.sleep(0.05)
+            made.append(listener[0])
+            if listener[0] == 2.0:
+                old_made.set()
+            return type("R", (), {"impulse": np.tile(np.float32([[1.0], [listener[0]]]), (1, 4))})()
+
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
+    engine = StreamEngine(22050, block=128)
+    errors = []
+    live = LiveAudio(Filters(), s, engine, np.zeros(2205, np.float32), on_error=lambda r, e: errors.append(e))
+    assert live.worker.wait_idle()
+    filters_before = engine.filters_set
+    s.set_listener((2.0, 1.0, 1.5))
+    assert inside.wait(10)
+    s.set_listener((3.0, 1.0, 1.5))  # the user moved on
+    moved_on.set()
+    assert live.worker.wait_idle(10)
+    assert 2.0 in made and 3.0 in made  # both were made ...
+    assert engine.filters_set == filters_before + 1 and engine.impulse[1, 0] == 3.0  # ... the engine got the newest only
+    assert live.worker.stopped == 1 and errors == [] and live.heard.request.pose.listener == (3.0, 1.0, 1.5)
+    live.close()
+
+
 def test_a_filter_asked_to_stop_gives_up_and_one_never_asked_is_unchanged():
     from pathlib import Path
 
