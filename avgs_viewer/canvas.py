@@ -82,13 +82,14 @@ class SceneCanvas(QtInteractor):
         self._frame_gate.timeout.connect(self._request)
 
     def set_dragging(self, dragging: bool) -> None:
-        """A handle drag starts (renders spaced by DRAG_FRAME_S) or ends (a waiting render goes now)."""
+        """A handle drag starts (renders spaced by DRAG_FRAME_S) or ends (a render waiting on the frame gate is
+        asked for at once, through the hold: a repaint, even one whose paint is held, composes the window)."""
         self.dragging = bool(dragging)
         if not dragging:  # the released pose's sound gets a whole HOLD_MAX_S, not what the drag's moves left
             self._held_since = None
         if not dragging and self._frame_gate.isActive():
             self._frame_gate.stop()
-            self.update()
+            self._request()
 
     def _request(self) -> None:
         """Ask Qt for a repaint (coalesced): during a drag not before DRAG_FRAME_S after the last

@@ -72,3 +72,30 @@ def test_the_release_of_a_drag_gives_its_pose_a_whole_hold(qtbot, canvas):
     assert canvas.frames == before
     busy["on"] = False
     qtbot.waitUntil(lambda: canvas.frames == before + 1, timeout=2_000)
+
+
+def test_the_release_does_not_compose_the_window_while_the_sound_is_made(qtbot, canvas):
+    """A drag's frame waiting on the frame gate at the release is asked for through the hold, like any
+    other: a repaint, even one whose paint is held, composes the whole window (software GL: ~10 ms of
+    both cores, beside the released pose's filter), so none comes until the filter is made."""
+    busy = {"on": False}
+    canvas.hold = lambda: busy["on"]
+    swaps = []
+    canvas.frameSwapped.connect(lambda: swaps.append(time.perf_counter()))
+    canvas.render()
+    qtbot.waitUntil(lambda: len(swaps) > 0, timeout=2_000)
+    qtbot.wait(50)
+    canvas.set_dragging(True)
+    before = canvas.frames
+    canvas.render()  # a move's frame, soon after the last: it waits on the frame gate
+    canvas.render()
+    qtbot.waitUntil(lambda: canvas.frames == before + 1, timeout=2_000)  # drawn at the gate
+    canvas.render()  # the next move's, at the gate again
+    assert canvas._frame_gate.isActive()
+    busy["on"] = True  # the released pose's filter is being made
+    swapped = len(swaps)
+    canvas.set_dragging(False)
+    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.6))
+    assert len(swaps) == swapped and canvas.frames == before + 1  # not even a composition
+    busy["on"] = False
+    qtbot.waitUntil(lambda: canvas.frames == before + 2, timeout=2_000)
