@@ -74,10 +74,14 @@ def test_the_release_of_a_drag_gives_its_pose_a_whole_hold(qtbot, canvas):
     qtbot.waitUntil(lambda: canvas.frames == before + 1, timeout=2_000)
 
 
-def test_the_release_does_not_compose_the_window_while_the_sound_is_made(qtbot, canvas):
+def test_the_release_does_not_compose_the_window_while_the_sound_is_made(qtbot, canvas, monkeypatch):
     """A drag's frame waiting on the frame gate at the release is asked for through the hold, like any
     other: a repaint, even one whose paint is held, composes the whole window (software GL: ~10 ms of
     both cores, beside the released pose's filter), so none comes until the filter is made."""
+    import avgs_viewer.canvas as canvas_module
+
+    monkeypatch.setattr(canvas_module, "DRAG_FRAME_S", 5.0)  # the frame waits on the gate, however slow the host
+    monkeypatch.setattr(canvas_module, "HOLD_MAX_S", 5.0)  # and the hold outlasts the test
     busy = {"on": False}
     canvas.hold = lambda: busy["on"]
     swaps = []
@@ -85,17 +89,14 @@ def test_the_release_does_not_compose_the_window_while_the_sound_is_made(qtbot, 
     canvas.render()
     qtbot.waitUntil(lambda: len(swaps) > 0, timeout=2_000)
     qtbot.wait(50)
-    canvas.set_dragging(True)
     before = canvas.frames
+    canvas.set_dragging(True)
     canvas.render()  # a move's frame, soon after the last: it waits on the frame gate
-    canvas.render()
-    qtbot.waitUntil(lambda: canvas.frames == before + 1, timeout=2_000)  # drawn at the gate
-    canvas.render()  # the next move's, at the gate again
     assert canvas._frame_gate.isActive()
     busy["on"] = True  # the released pose's filter is being made
     swapped = len(swaps)
     canvas.set_dragging(False)
-    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.6))
-    assert len(swaps) == swapped and canvas.frames == before + 1  # not even a composition
+    qtbot.wait(100)
+    assert len(swaps) == swapped and canvas.frames == before  # not even a composition
     busy["on"] = False
-    qtbot.waitUntil(lambda: canvas.frames == before + 2, timeout=2_000)
+    qtbot.waitUntil(lambda: canvas.frames == before + 1, timeout=2_000)  # drawn once the filter is made
