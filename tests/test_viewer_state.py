@@ -447,12 +447,28 @@ def test_the_newest_request_of_every_burst_is_rendered_with_both_lanes_waiting()
     assert lost == 0 and w.stopped > 0  # (bursts did overlap: stale renders gave up)
 
 
+def _live_audio(filters):
+    """(state, engine, LiveAudio, errors reported) over ``filters`` (the renderer's interface), idle."""
+    from avgs_viewer.audio import StreamEngine
+    from avgs_viewer.worker import LiveAudio
+
+    s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
+    engine = StreamEngine(22050, block=128)
+    errors = []
+    live = LiveAudio(filters, s, engine, np.zeros(2205, np.float32), on_error=lambda r, e: errors.append(e))
+    assert live.worker.wait_idle()
+    return s, engine, live, errors
+
+
+def _marked_filter(listener):
+    """A stand-in pose filter [2, 4] whose right ear holds the listener's x (which pose the engine plays)."""
+    return type("R", (), {"impulse": np.tile(np.float32([[1.0], [listener[0]]]), (1, 4))})()
+
+
 def test_a_moves_filter_made_stale_by_a_newer_pose_stops_and_the_newest_is_heard():
     """While a move's filter is made the user moves on: the old one gives up at its stop check (the
     worker's ``stopped``, no error reported), and the newest pose's filter is what the engine gets."""
     from avgs.threads import Stopped
-    from avgs_viewer.audio import StreamEngine
-    from avgs_viewer.worker import LiveAudio
 
     inside, moved_on = threading.Event(), threading.Event()
     asked = []
@@ -465,13 +481,9 @@ def test_a_moves_filter_made_stale_by_a_newer_pose_stops_and_the_newest_is_heard
             asked.append((listener[0], stop()))
             if stop():
                 raise Stopped("stale")
-            return type("R", (), {"impulse": np.tile(np.float32([[1.0], [listener[0]]]), (1, 4))})()
+            return _marked_filter(listener)
 
-    s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
-    engine = StreamEngine(22050, block=128)
-    errors = []
-    live = LiveAudio(Filters(), s, engine, np.zeros(2205, np.float32), on_error=lambda r, e: errors.append(e))
-    assert live.worker.wait_idle()
+    s, engine, live, errors = _live_audio(Filters())
     s.set_listener((2.0, 1.0, 1.5))
     assert inside.wait(10)
     s.set_listener((3.0, 1.0, 1.5))  # the user moved on
@@ -486,9 +498,6 @@ def test_a_moves_filter_made_stale_by_a_newer_pose_stops_and_the_newest_is_heard
 def test_a_filter_made_stale_after_its_last_check_is_not_handed_to_the_engine():
     """The user moves on while a move's filter makes its last stage: the filter is made, but the engine
     never gets it (its hand-over would take the CPU from the newest pose's filter); the newest is heard."""
-    from avgs_viewer.audio import StreamEngine
-    from avgs_viewer.worker import LiveAudio
-
     inside, moved_on, old_made = threading.Event(), threading.Event(), threading.Event()
     made = []
 
@@ -503,13 +512,9 @@ def test_a_filter_made_stale_after_its_last_check_is_not_handed_to_the_engine():
             made.append(listener[0])
             if listener[0] == 2.0:
                 old_made.set()
-            return type("R", (), {"impulse": np.tile(np.float32([[1.0], [listener[0]]]), (1, 4))})()
+            return _marked_filter(listener)
 
-    s = ViewerState(BOUNDS, source=(4, 3, 1.2), listener=(1, 1, 1.5))
-    engine = StreamEngine(22050, block=128)
-    errors = []
-    live = LiveAudio(Filters(), s, engine, np.zeros(2205, np.float32), on_error=lambda r, e: errors.append(e))
-    assert live.worker.wait_idle()
+    s, engine, live, errors = _live_audio(Filters())
     filters_before = engine.filters_set
     s.set_listener((2.0, 1.0, 1.5))
     assert inside.wait(10)
