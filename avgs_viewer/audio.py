@@ -27,7 +27,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -96,6 +96,7 @@ class ClipSpectrum:
     density: np.ndarray
     mean_square: float
     n: int
+    _weighted: dict = field(default_factory=dict, init=False, repr=False, compare=False)  # m -> (w p on m's bins, sum)
 
     @classmethod
     def of(cls, mono: np.ndarray, n: int = 2048) -> "ClipSpectrum":
@@ -113,18 +114,24 @@ class ClipSpectrum:
         return cls(density=power / max(1, len(starts)), mean_square=float(np.mean(np.square(x))) if len(x) else 0.0,
                    n=n)
 
+    def _weights(self, m: int) -> tuple[np.ndarray, float]:
+        """``w p`` [m // 2 + 1] on the bins of an ``m``-point FFT and its sum (the same for every filter of a length)."""
+        if m not in self._weighted:
+            density = np.interp(np.arange(m // 2 + 1) / m, np.arange(self.n // 2 + 1) / self.n, self.density)
+            w = np.full(m // 2 + 1, 2.0)
+            w[0] = w[-1] = 1.0
+            self._weighted[m] = (w * density, float(np.sum(w * density)))
+        return self._weighted[m]
+
     def output_power(self, impulse: np.ndarray) -> np.ndarray:
         """[C] mean square of each channel of ``impulse [C, L]`` applied to the clip."""
         h = np.asarray(impulse, dtype=np.float64)
         m = max(self.n, 1 << int(np.ceil(np.log2(max(h.shape[-1], 2)))))
-        gain = np.abs(np.fft.rfft(h, m, axis=-1)) ** 2  # [C, m // 2 + 1]
-        density = np.interp(np.arange(m // 2 + 1) / m, np.arange(self.n // 2 + 1) / self.n, self.density)
-        w = np.full(m // 2 + 1, 2.0)
-        w[0] = w[-1] = 1.0
-        total = float(np.sum(w * density))
+        weights, total = self._weights(m)
         if total <= 0.0:
             return np.zeros(h.shape[0])
-        return self.mean_square * (gain @ (w * density)) / total
+        gain = np.abs(np.fft.rfft(h, m, axis=-1)) ** 2  # [C, m // 2 + 1]
+        return self.mean_square * (gain @ weights) / total
 
 
 def filter_levels(impulse: np.ndarray, spectrum: ClipSpectrum, gain: float = 1.0) -> tuple[float, float, float]:
