@@ -23,6 +23,8 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
+from avgs.threads import stopped
+
 from .audio import StreamEngine, filter_levels, make_seamless_loop
 from .newest import RenderWorker
 from .refine import SETTLE_SECONDS, LoopRefiner, Refined, refines
@@ -239,8 +241,6 @@ class LiveAudio:
         network, after the direct sound, before its placement: the worker's ``stopped``), and a filter made
         stale after its last check is not handed to the engine either (its hand-over and levels take
         ~3 ms of a core): the CPU goes to the pose the user is at."""
-        from avgs.threads import stopped
-
         pose = request.pose
 
         def stale() -> bool:
