@@ -68,18 +68,6 @@ class VtkProjector:
         return near, d / np.linalg.norm(d)
 
 
-def _coloured(mesh: pv.PolyData, colour) -> pv.PolyData:
-    """``mesh`` with point normals (split at its sharp edges) and every point coloured ``colour`` (RGB in 0..1,
-    the point array ``rgb``): parts of one colour each that merge into one actor."""
-    if "Normals" not in mesh.point_data:
-        mesh = mesh.compute_normals(split_vertices=True, feature_angle=30.0)
-    else:
-        mesh = mesh.copy()
-    rgb = np.round(255 * np.clip(np.asarray(colour, dtype=np.float64), 0.0, 1.0)).astype(np.uint8)
-    mesh.point_data["rgb"] = np.broadcast_to(rgb, (mesh.n_points, 3)).copy()
-    return mesh
-
-
 def _outline_mesh(outline: np.ndarray) -> pv.PolyData:
     """[K, 2, 3] world segments -> line PolyData."""
     outline = np.asarray(outline, dtype=np.float64)
@@ -203,21 +191,14 @@ class SceneView:
         r = self.handle_radius
         length = 4.0 * r
 
-        def add(parts: list[tuple[pv.PolyData, tuple]], *, ring: bool) -> pv.Actor:
-            # One actor for all of a handle's parts of one kind, each part its own colour (per point): every
-            # actor is a draw call of its own, and with software GL each costs ~0.3 ms of a drag's frame.
-            mesh = pv.merge([_coloured(m, c) for m, c in parts]) if len(parts) > 1 else _coloured(*parts[0])
-            mapper = pv.DataSetMapper(mesh)
-            mapper.SetColorModeToDirectScalars()
-            mapper.SetScalarModeToUsePointFieldData()
-            mapper.SelectColorArray("rgb")
-            mapper.SetScalarVisibility(True)
-            actor = pv.Actor(mapper=mapper)
+        def add(mesh: pv.PolyData, colour, *, shaded: bool = True, ring: bool = False) -> pv.Actor:
+            actor = pv.Actor(mapper=pv.DataSetMapper(mesh))
             prop = actor.prop
+            prop.color = colour
             if ring:  # only the far side of a larger shell shows: a ring around the handle
                 prop.culling = "front"
                 prop.lighting = False
-            else:
+            elif shaded:
                 prop.interpolation = "phong"
                 prop.specular, prop.specular_power = 0.3, 20.0
             actor.SetPickable(False)
@@ -234,16 +215,17 @@ class SceneView:
                             tip_length=(0.3 * length + 1.5 * grow) / size,
                             tip_radius=(0.14 * length + grow) / size, shaft_radius=(0.05 * length + grow) / size)
 
-        # Each handle: its rings (outer first) and its body; the listener's facing arrow and its ring are
-        # part of its own (turned with the yaw: the spheres are the same at any turn).
-        shells = [(sphere(scale * r), colour) for scale, colour in reversed(HALO)]
-        self._listener_rings = add(shells + [(arrow(0.12 * r), HALO[-1][1])], ring=True)
-        self._source_rings = add(shells, ring=True)
-        self._listener_actor = add([(sphere(r), colors.LISTENER_COLOUR), (arrow(0.0), colors.LISTENER_COLOUR)],
-                                   ring=False)
-        self._source_actor = add([(sphere(r), colors.SOURCE_COLOUR)], ring=False)
-        self._listener_parts = [self._listener_rings, self._listener_actor]  # placed and turned with the listener
-        self._source_parts = [self._source_rings, self._source_actor]
+        self._listener_parts, self._source_parts, self._facing_parts = [], [], []
+        for scale, colour in reversed(HALO):
+            self._listener_parts.append(add(sphere(scale * r), colour, ring=True))
+            self._source_parts.append(add(sphere(scale * r), colour, ring=True))
+        self._facing_parts.append(add(arrow(0.12 * r), HALO[-1][1], ring=True))
+        self._facing_parts.append(add(arrow(0.0), colors.LISTENER_COLOUR))
+        self._listener_actor = add(sphere(r), colors.LISTENER_COLOUR)
+        self._source_actor = add(sphere(r), colors.SOURCE_COLOUR)
+        self._listener_parts.append(self._listener_actor)
+        self._source_parts.append(self._source_actor)
+        self._arrow_actor = self._facing_parts[-1]
 
     def handle_circles(self, margin: float = 4.0) -> list[tuple[np.ndarray, float]]:
         """Where the handles are on screen: (centre [2] display px, radius px incl. rings) for the
@@ -451,7 +433,7 @@ class SceneView:
 
     def _set_first_person(self, on: bool) -> None:
         self._first_person = on
-        for actor in self._listener_parts:
+        for actor in self._listener_parts + self._facing_parts:
             actor.SetVisibility(not on)
 
     def _camera_moved_by_mouse(self, *_args) -> None:
@@ -510,6 +492,8 @@ class SceneView:
     def _place_handles(self) -> None:
         listener, source = tuple(self.state.listener), tuple(self.state.source)
         for actor in self._listener_parts:
+            actor.position = listener
+        for actor in self._facing_parts:
             actor.position = listener
             actor.orientation = (0.0, 0.0, self.state.yaw)
         for actor in self._source_parts:

@@ -80,30 +80,6 @@ def test_handles_show_through_the_points_with_rings_in_every_colour_mode(filled)
     plotter.close()
 
 
-def test_each_handle_is_two_draws_and_the_listeners_arrow_turns_with_its_yaw(filled):
-    """The rings and the body of each handle are one actor each (every actor is a draw call of a drag's frame,
-    ~0.3 ms each with software GL); the facing arrow, drawn with the listener's body, points along the yaw."""
-    _, renderer = filled
-    plotter = pv.Plotter(off_screen=True, window_size=[640, 480])
-    state = ViewerState(renderer.bounds, renderer.source, listener=LISTENER, yaw=0.0, outline=renderer.outline)
-    view = SceneView(plotter, renderer, state, axes=False)
-    props = view.overlay.GetViewProps()
-    assert props.GetNumberOfItems() == 4  # listener rings and body, source rings and body
-    listener = np.asarray(colors.LISTENER_COLOUR)
-    for yaw in (0.0, 90.0, 225.0):
-        state.set_yaw(yaw)
-        img = shot(plotter)
-        proj = view.projector()
-        a = np.deg2rad(yaw)
-        along = lambda k: LISTENER + k * view.handle_radius * np.array([np.cos(a), np.sin(a), 0.0])  # noqa: E731
-        shaft = pixel(img, proj.to_display(along(2.0))) / 255  # beyond the sphere and its rings, on the arrow
-        assert np.abs(shaft - listener).max() < 0.45, (yaw, shaft)
-        back = pixel(img, proj.to_display(along(-2.0))) / 255  # the other side: no arrow there
-        assert np.abs(back - listener).max() > 0.45, (yaw, back)
-    view.close()
-    plotter.close()
-
-
 def legend_box_px(view) -> tuple[float, float, float, float]:
     legend = view.plotter.legend
     w, h = view.plotter.render_window.GetSize()
