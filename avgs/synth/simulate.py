@@ -184,12 +184,29 @@ def binaural_rirs(spec: SceneSpec, listener: np.ndarray, yaw_deg: float, setting
         pra.MicrophoneArray(mics, settings.sample_rate, directivity=[_turned(left, yaw_deg), _turned(right, yaw_deg)])
     )
     _enable_ray_tracing(room, settings)
-    room.compute_rir()
+    compute_rir(room)
     ears = [np.asarray(room.rir[m][0], dtype=np.float64) for m in (0, 1)]
     out = np.zeros((2, max(len(e) for e in ears)), dtype=np.float32)
     for m, e in enumerate(ears):
         out[m, : len(e)] = e
     return out
+
+
+def compute_rir(room) -> None:
+    """``room.compute_rir()`` without pyroomacoustics' phantom direct sound (0.10.1, rooms from polygons).
+
+    Where no image source up to the room's order reaches the microphones (a listener two rooms
+    from the source, behind two walls), pyroomacoustics marks "the direct path not visible" with an
+    integer array ``[[0]]``, which its ``compute_ism_rir`` then uses as an index, not a mask: image 0,
+    the source itself, is rendered at full level at distance / c, through every wall between. Here
+    those images are given zero amplitude instead, so such a response holds only what the ray tracing
+    brings (the sound that finds its way around). Upstream: LCAV/pyroomacoustics#441 (the same case)."""
+    room.image_source_model()
+    for source, visible in zip(room.sources, room.visibility):
+        visible = np.asarray(visible)
+        if visible.dtype != np.bool_ and not visible.any():  # the "nothing visible" stand-in, not a mask
+            source.damping = np.zeros_like(source.damping)
+    room.compute_rir()
 
 
 def _enable_ray_tracing(room, settings: SimSettings) -> None:
@@ -257,7 +274,7 @@ def receiver_rirs(spec: SceneSpec, sources, listener, yaws_deg, settings: SimSet
     mics = np.repeat(listener[:, None], len(directivity), axis=1)  # [3, 2 O] every ear at the head centre
     room.add_microphone_array(pra.MicrophoneArray(mics, settings.sample_rate, directivity=directivity))
     _enable_ray_tracing(room, settings)
-    room.compute_rir()
+    compute_rir(room)
     n = max(len(room.rir[m][s]) for m in range(len(directivity)) for s in range(len(sources)))
     out = np.zeros((len(sources), len(yaws), 2, n), dtype=np.float32)
     for m in range(len(directivity)):
