@@ -121,6 +121,12 @@ class RenderWorker(Generic[Request, Result]):
             self._thread.join(timeout)
 
     @property
+    def running(self) -> bool:
+        """A request is being rendered now (on either lane)."""
+        with self._cond:
+            return self._running > 0
+
+    @property
     def alive(self) -> bool:
         return self._thread.is_alive() and (self._spare is None or self._spare.is_alive())
 

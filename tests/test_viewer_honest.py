@@ -4,7 +4,6 @@ a bad checkpoint leaving a usable empty window; a source in a wall noted; ``--ve
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -137,10 +136,10 @@ def test_a_bad_checkpoint_leaves_a_usable_empty_window(qtbot, tmp_path, content)
 
 
 @pytest.mark.gui
-def test_window_fits_a_1366x768_screen():
+def test_window_fits_a_1366x768_screen(qtbot):
     from avgs_viewer.window import MainWindow
 
-    w = MainWindow(start_audio=False)
+    w = MainWindow(start_audio=False)  # (qtbot: the QApplication, whichever test this process ran first)
     try:
         assert w.minimumSizeHint().height() <= 700 and w.minimumSizeHint().width() <= 1366
         assert w.height() <= 700

@@ -110,11 +110,19 @@ def test_a_settled_pose_plays_its_loop_and_a_move_goes_back_to_the_filter(render
 def test_a_drag_cancels_refinements_and_the_last_pose_gets_its_own(renderer):
     state = ViewerState(renderer.bounds, renderer.source)
     engine = StreamEngine(renderer.sample_rate, block=BLOCK)
-    live = LiveAudio(renderer, state, engine, bursts(renderer.sample_rate, 1.5, seed=1), settle=0.0)
+    # settle 0.2 s: a refinement the refiner has started waits that long for its pose to hold
+    live = LiveAudio(renderer, state, engine, bursts(renderer.sample_rate, 1.5, seed=1), settle=0.2)
     rng = np.random.default_rng(2)
     lo, hi = np.asarray(renderer.bounds)
     try:
-        for i in range(40):  # a pose every few ms: refinements start (settle 0) and are overtaken
+        state.set_listener(rng.uniform(lo, hi))  # the drag's first pose: its refinement starts (it runs at a lower
+        run(engine, 1)                           # priority than the filters, so it may wait for the burst's end)
+        deadline = time.perf_counter() + 10
+        while not live.refiner.worker.running and time.perf_counter() < deadline:
+            run(engine, 1)
+            time.sleep(0.002)
+        assert live.refiner.worker.running
+        for i in range(40):  # a pose every few ms: the refinement under way, and those after it, are overtaken
             state.set_listener(rng.uniform(lo, hi))
             run(engine, 1)
             time.sleep(0.003)
