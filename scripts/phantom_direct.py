@@ -83,16 +83,16 @@ def count(name: str, spec, settings: SimSettings, splits: dict) -> None:
         print(f"{name}: a shoebox room (pyroomacoustics' own path: always a direct sound), nothing to count")
         return
     for split, items in splits.items():
-            by_listener: dict[tuple, list] = {}
-            for lis, src in items:
-                by_listener.setdefault(tuple(np.round(lis, 6)), []).append(src)
-            hit = total = 0
-            for lis, sources in by_listener.items():
-                unique = np.unique(np.round(np.asarray(sources), 6), axis=0)
-                flags = dict(zip(map(tuple, unique), unreached(spec, settings, np.asarray(lis), unique)))
-                hit += sum(flags[tuple(np.round(s, 6))] for s in sources)
-                total += len(sources)
-            print(f"{name} {split}: {hit} of {total} responses with no image-source path (a phantom direct sound before the fix)")
+        by_listener: dict[tuple, list] = {}
+        for lis, src in items:
+            by_listener.setdefault(tuple(np.round(lis, 6)), []).append(src)
+        hit = total = 0
+        for lis, sources in by_listener.items():
+            unique = np.unique(np.round(np.asarray(sources), 6), axis=0)
+            flags = dict(zip(map(tuple, unique), unreached(spec, settings, np.asarray(lis), unique)))
+            hit += sum(flags[tuple(np.round(s, 6))] for s in sources)
+            total += len(sources)
+        print(f"{name} {split}: {hit} of {total} responses with no image-source path (a phantom direct sound before the fix)")
 
 
 def main(argv: list[str]) -> None:

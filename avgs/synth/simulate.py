@@ -195,9 +195,9 @@ def binaural_rirs(spec: SceneSpec, listener: np.ndarray, yaw_deg: float, setting
 def compute_rir(room) -> None:
     """``room.compute_rir()`` without pyroomacoustics' phantom direct sound (0.10.1, rooms from polygons).
 
-    Where no image source up to the room's order reaches the microphones (a listener two rooms
-    from the source, behind two walls), pyroomacoustics marks "the direct path not visible" with an
-    integer array ``[[0]]``, which its ``compute_ism_rir`` then uses as an index, not a mask: image 0,
+    Where no image source up to the room's order reaches the microphones (a listener behind a wall
+    whom no path of up to that many reflections reaches through a door), pyroomacoustics marks "the
+    direct path not visible" with an integer array ``[[0]]``, which its ``compute_ism_rir`` then uses as an index, not a mask: image 0,
     the source itself, is rendered at full level at distance / c, through every wall between. Here
     those images are given zero amplitude instead, so such a response holds only what the ray tracing
     brings (the sound that finds its way around). Upstream: LCAV/pyroomacoustics#441 (the same case)."""
