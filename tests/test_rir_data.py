@@ -331,6 +331,20 @@ def test_cli_task_and_preset_must_agree(tmp_path, capsys):
     assert scene.metadata["environment"] == "multi-room" and not is_rir_scene(scene.root)
 
 
+def test_responses_no_sound_reaches_are_counted_and_said(tmp_path, capsys):
+    """--quick has no ray tracing: a receiver two rooms from a source that no image source reaches gets a
+    silent response (once a phantom direct sound: avgs.synth.simulate.compute_rir); the CLI says how many,
+    and scene.json keeps the count, which equals the all-zero files written."""
+    argv = ["synth", str(tmp_path), "--task", "rir", "--preset", "three_rooms", "--quick", "--workers", "1", "--no-progress"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    scene = tmp_path / "three_rooms_0"
+    meta = json.loads((scene / "scene.json").read_text())["rir"]
+    zero = sum(not np.any(wavfile.read(f)[1]) for f in sorted((scene / "rir").glob("*.wav")))
+    assert meta["silent"] == zero > 0
+    assert f"note: {zero} of " in out and "hold no sound" in out
+
+
 def _edit_meta(scene_dir, edit):
     path = scene_dir / "scene.json"
     meta = json.loads(path.read_text())

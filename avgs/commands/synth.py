@@ -111,6 +111,10 @@ def run_rir(args: argparse.Namespace) -> int:
         f"{result.responses} responses of {result.length} samples; RT60 {rt_text}; responses {result.seconds_responses:.1f} s "
         f"({result.cpu_seconds_per_room:.2f} s per room on one core), {result.seconds_total:.1f} s in all"
     )
+    if result.silent:
+        print(f"note: {result.silent} of {result.responses} responses hold no sound: no image source up to the "
+              "simulator's order reaches their listener, and ray tracing (the sound that finds its way around) is "
+              "off; scene.json's rir.silent counts them")
     return 0
 
 

@@ -130,6 +130,7 @@ class RIRResult:
     seconds_total: float
     seconds_responses: float  # wall time of the response simulation
     cpu_seconds_per_room: float  # mean single-process time of one room (a receiver and up to SOURCES_PER_ROOM sources)
+    silent: int = 0  # responses with no sound at all (no image-source path, and ray tracing off)
 
 
 def response_length(rt60_s: float | None, max_distance: float, cfg: RIRConfig, sample_rate: int) -> int:
@@ -199,7 +200,7 @@ def write_rir_scene(out_root, scene_id: str, cfg: RIRConfig, *, overwrite: bool 
         offset = emission_delay(settings)
         (folder / RIR_DIR).mkdir()
         t_sim = time.perf_counter()
-        seconds, peak = [], 0.0
+        seconds, peak, silent = [], 0.0, 0
         ear_directivities(settings.sample_rate, settings.hrtf_equalised)  # before forking: workers inherit the head
         for r, sources, rirs, sec in run_jobs(
             _simulate_receiver, len(jobs), _init_worker, (spec, grid, jobs, yaws, settings),
@@ -210,9 +211,10 @@ def write_rir_scene(out_root, scene_id: str, cfg: RIRConfig, *, overwrite: bool 
                 for o, y in enumerate(yaws):
                     h = _to_length(rirs[k, o], offset, length)  # [2, L]
                     peak = max(peak, float(np.max(np.abs(h))))
+                    silent += not np.any(h)  # no image-source path and no ray tracing (simulate.compute_rir)
                     # scipy writes IEEE-float WAVs with no PEAK chunk: the same seed gives the same bytes
                     wavfile.write(folder / RIR_DIR / rir_file_name(s, r, y), sr, np.ascontiguousarray(h.T))
-        info.update(length=length, seconds=time.perf_counter() - t_sim, cpu=float(np.mean(seconds)))
+        info.update(length=length, seconds=time.perf_counter() - t_sim, cpu=float(np.mean(seconds)), silent=silent)
         index = {
             "format": FORMAT,
             "sample_rate": sr,
@@ -236,6 +238,7 @@ def write_rir_scene(out_root, scene_id: str, cfg: RIRConfig, *, overwrite: bool 
             "speed_of_sound": speed_of_sound(),
             "scale": 1.0,
             "peak": peak,
+            "silent": silent,  # responses with no sound at all: no path of up to max_order_polygon reflections, no ray tracing
             "sources_world": grid.sources.tolist(),
             "receivers_world": grid.receivers.tolist(),
             "heldout_sources": grid.heldout_sources,
@@ -253,4 +256,5 @@ def write_rir_scene(out_root, scene_id: str, cfg: RIRConfig, *, overwrite: bool 
         seconds_total=time.perf_counter() - t_start,
         seconds_responses=info["seconds"],
         cpu_seconds_per_room=info["cpu"],
+        silent=info["silent"],
     )
