@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from avgs.synth.simulate import SimSettings, build_room, load_settings, load_spec
+from avgs.synth.simulate import SimSettings, build_room, load_settings, load_spec, unreached_sources
 
 
 def unreached(spec, settings: SimSettings, listener: np.ndarray, sources: np.ndarray) -> np.ndarray:
@@ -32,7 +32,7 @@ def unreached(spec, settings: SimSettings, listener: np.ndarray, sources: np.nda
         room.add_source(s)
     room.add_microphone(listener)
     room.image_source_model()
-    return np.array([np.asarray(v).dtype != np.bool_ and not np.asarray(v).any() for v in room.visibility])
+    return np.array(unreached_sources(room))
 
 
 def pairs(scene: Path) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:

@@ -202,11 +202,16 @@ def compute_rir(room) -> None:
     those images are given zero amplitude instead, so such a response holds only what the ray tracing
     brings (the sound that finds its way around). Upstream: LCAV/pyroomacoustics#441 (the same case)."""
     room.image_source_model()
-    for source, visible in zip(room.sources, room.visibility):
-        visible = np.asarray(visible)
-        if visible.dtype != np.bool_ and not visible.any():  # the "nothing visible" stand-in, not a mask
+    for source, unreached in zip(room.sources, unreached_sources(room)):
+        if unreached:
             source.damping = np.zeros_like(source.damping)
     room.compute_rir()
+
+
+def unreached_sources(room) -> list[bool]:
+    """After ``room.image_source_model()``: per source, whether no image source reaches the microphones
+    (pyroomacoustics' "nothing visible" stand-in, an integer ``[[0]]``, not a boolean mask: :func:`compute_rir`)."""
+    return [np.asarray(v).dtype != np.bool_ and not np.asarray(v).any() for v in room.visibility]
 
 
 def _enable_ray_tracing(room, settings: SimSettings) -> None:
