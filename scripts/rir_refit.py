@@ -6,7 +6,8 @@ training responses exactly as training does (:meth:`avgs.train.impulse_responses
 and ``fit_reflections``); the weights and every other buffer stay (no fit depends on them). For
 checkpoints trained before these existed (the tables of docs/results.md, the bundled demo).
 ``--no-level``: without the level law; ``--no-reflections``: without the walls' reflections; ``--no-arrival``:
-without the first reflection's arrival behind a wall (``RIRConfig.reflected_arrival``); ``--local``: with
+without the first reflection's arrival behind a wall (``RIRConfig.reflected_arrival``); ``--no-lag``: without the
+first sound's lag behind a wall (``RIRConfig.blocked_lag``); ``--local``: with
 the local correction (off by default since the walls' reflections: ``RIRConfig.ild_local``).
 
     python scripts/rir_refit.py data/rir/two_rooms runs/two_rooms.ckpt runs/two_rooms.refit.ckpt
@@ -31,10 +32,11 @@ class _Quiet:
 
 
 def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, reflections: bool = True,
-          local: bool = False, arrival: bool = True) -> str:
+          local: bool = False, arrival: bool = True, lag: bool = True) -> str:
     """Write ``out_path``: ``ckpt_path`` with the level law (``level``), the walls' reflections
     (``reflections``; with ``arrival`` also behind a wall) and the early ILD's local correction (``local``)
-    fitted on ``scene_dir``, each left out when not asked for; what was added, in words."""
+    fitted on ``scene_dir``, and behind a wall the first sound's lag (``lag``, ``RIRConfig.blocked_lag``), each left
+    out when not asked for; what was added, in words."""
     data = load_checkpoint(ckpt_path)
     cfg = config_of(data)
     if not (cfg.rir.direct_sound and cfg.rir.direct_ild):
@@ -82,16 +84,24 @@ def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, ref
             direction, delay = (float(v) > 0.5 for v in state["reflected_arrival"])
             said += (f"; behind a wall the {'first reflection' if direction else 'straight line'}'s direction and "
                      f"the {'first reflection' if delay else 'straight line'}'s delay")
+    data["config"]["rir"]["blocked_lag"] = lag
+    data["binauralizer"].pop("blocked_lag", None)
+    if lag:  # behind a wall, the first sound's lag after the straight line (after the first reflection's fit)
+        data["binauralizer"]["blocked_lag"] = torch.tensor(0.0)
+        renderer = SceneRenderer(data, path=ckpt_path)
+        task.fit_lag(renderer.model)
+        data["binauralizer"]["blocked_lag"] = renderer.model.binauralizer.blocked_lag.detach().float().cpu().clone()
+        said += f"; behind a wall the first sound {1e3 * float(data['binauralizer']['blocked_lag']):.1f} ms after the straight line"
     law = " / ".join(f"{float(c):.2f}" for c in data["binauralizer"]["ild_law"])
     save_checkpoint(data, out_path)
     return f"the ILD law {law} dB" + said
 
 
 if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a not in ("--no-level", "--no-reflections", "--no-arrival", "--local")]
+    args = [a for a in sys.argv[1:] if a not in ("--no-level", "--no-reflections", "--no-arrival", "--no-lag", "--local")]
     if len(args) != 3:
         print(__doc__)
         sys.exit(2)
     said = refit(*args, level="--no-level" not in sys.argv, reflections="--no-reflections" not in sys.argv,
-                 local="--local" in sys.argv, arrival="--no-arrival" not in sys.argv)
+                 local="--local" in sys.argv, arrival="--no-arrival" not in sys.argv, lag="--no-lag" not in sys.argv)
     print(f"{args[2]}: {said}")

@@ -550,6 +550,69 @@ def test_behind_a_wall_the_first_sound_comes_by_the_reflection_that_passes_the_o
     assert straight.delays[0].abs().max().item() < 1e-6  # straight ahead: no ITD
 
 
+def _partition_model(renderer):
+    """A copy of ``renderer``'s model whose G_a is a partition at x = 3 (y < 2, 2.5 m high, two faces 0.12 m
+    apart) and whose straight path's test counts it: a path across it below y = 2 is behind a wall."""
+    import copy
+
+    model = copy.deepcopy(renderer.model)
+    u = np.arange(0.0, 6.05, 0.1)
+    yy, zz = np.meshgrid(u[u <= 2.0], u[u <= 2.5])
+    partition = [np.stack([np.full(yy.size, x), yy.ravel(), zz.ravel()], -1) for x in (3.0, 3.12)]
+    model.points.X.data = torch.as_tensor(np.concatenate(partition), dtype=model.points.X.dtype)
+    with torch.no_grad():
+        for name, value in (("sight_radius", 0.2), ("sight_margin", 0.3), ("sight_blocked", 20.0)):
+            getattr(model.binauralizer, name).fill_(value)
+        if getattr(model.binauralizer, "reflected_arrival", None) is not None:
+            model.binauralizer.reflected_arrival.zero_()
+    return model
+
+
+def test_behind_a_wall_the_first_sound_arrives_the_fitted_lag_after_the_straight_line(renderer):
+    """With ``blocked_lag`` the direct sound of a pose behind the partition arrives at distance / c plus the
+    lag, with the ITD of its direction as before; a pose in sight (its path passes above the partition's
+    end) keeps distance / c. The quick room has no pair behind a wall: training fits no lag."""
+    assert renderer.config.rir.blocked_lag and float(renderer.model.binauralizer.blocked_lag) == 0.0
+    model = _partition_model(renderer)
+    listener = torch.tensor([[2.0, 1.55, 1.55], [2.0, 3.05, 1.55]])  # 5 cm off the points' grid (see above)
+    source = torch.tensor([[5.5, 1.0, 1.55], [5.5, 3.55, 1.55]])
+    yaw = torch.zeros(2)
+    c = model.rir.sound_speed
+    distance = torch.linalg.vector_norm(source - listener, dim=-1).double()
+    with torch.no_grad():
+        plain = model.direct_sound(listener, yaw, source)
+        model.binauralizer.blocked_lag.fill_(0.004)
+        lagged = model.direct_sound(listener, yaw, source)
+    assert plain.arrival.tolist() == pytest.approx((distance / c).tolist())
+    assert lagged.arrival.tolist() == pytest.approx([float(distance[0]) / c + 0.004, float(distance[1]) / c])
+    assert torch.equal(lagged.delays, plain.delays)
+
+
+@pytest.mark.parametrize("through_the_wall", [False, True])
+def test_the_lag_is_fitted_to_the_training_pairs_behind_a_wall(renderer, through_the_wall):
+    """Training pairs on both sides of the partition whose onsets are distance / c, and, behind it, 3 ms later
+    (a first sound that goes around) or not (one that comes through): the fit finds 3 ms, or no lag."""
+    from types import SimpleNamespace
+
+    from avgs.train.impulse_responses import ImpulseResponseTraining
+
+    model = _partition_model(renderer)
+    rng = np.random.default_rng(5)
+    n = 40
+    receiver = np.stack([rng.uniform(0.5, 2.5, n), rng.uniform(0.2, 3.8, n), np.full(n, 1.55)], -1)
+    source = np.tile([5.5, 1.0, 1.55], (n, 1))
+    task = SimpleNamespace(train_set=SimpleNamespace(receiver=receiver, source=source, yaw=rng.uniform(0, 360, n)),
+                           _log=None)
+    task._counts_on_paths = lambda m, r, g: ImpulseResponseTraining._counts_on_paths(task, m, r, g)
+    blocked = task._counts_on_paths(model, 0.2, 0.3) >= 20
+    assert 10 <= int(blocked.sum()) <= n - 10  # both sides hold pairs
+    c = model.rir.sound_speed
+    onsets = np.linalg.norm(source - receiver, axis=-1) / c
+    task._onsets = onsets + np.where(blocked & (not through_the_wall), 0.003 + rng.uniform(-2e-4, 2e-4, n), 0.0)
+    ImpulseResponseTraining.fit_lag(task, model)
+    assert float(model.binauralizer.blocked_lag) == pytest.approx(0.0 if through_the_wall else 0.003, abs=2.5e-4)
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_the_points_on_a_path_by_the_compiled_loop_are_the_matrix_products_count(dtype):
     """points_on_path on the CPU (one compiled loop, float64) counts what its torch reference (the CUDA path,

@@ -200,6 +200,9 @@ class RIRModel(AVGSModel):
             reflected_path, reflected_from = self.first_arrival(listener, yaw, source, blocked, distance, theta)
             heard_from = reflected_from if use[0] > 0.5 else theta
             path = reflected_path if use[1] > 0.5 else distance
+        lag = getattr(b, "blocked_lag", None)  # behind a wall, the first sound this long after distance / c (fitted)
+        if lag is not None and float(lag) > 0 and bool(blocked.any()):
+            path = torch.where(blocked, distance + float(lag) * self.rir.sound_speed, path)
         return DirectSound(path / self.rir.sound_speed, lagging_ear(self.head_itd(heard_from)), ild, energy)
 
     def head_itd(self, theta: torch.Tensor) -> torch.Tensor:

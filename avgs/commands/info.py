@@ -73,6 +73,8 @@ def summary(path) -> dict:
                             else float(ckpt["binauralizer"]["reflection_gain"])),
         "reflected_arrival": (None if ckpt["binauralizer"].get("reflected_arrival") is None
                               else [bool(float(v) > 0.5) for v in ckpt["binauralizer"]["reflected_arrival"]]),
+        "blocked_lag_ms": (None if ckpt["binauralizer"].get("blocked_lag") is None
+                           else 1e3 * float(ckpt["binauralizer"]["blocked_lag"])),
         "blocked_from_points": (None if ckpt["binauralizer"].get("sight_blocked") is None
                                 else float(ckpt["binauralizer"]["sight_blocked"])),
         "wall_loss_db": (None if ckpt["binauralizer"].get("wall_loss") is None
@@ -167,8 +169,13 @@ def run(args: argparse.Namespace) -> int:
         arrival = info["reflected_arrival"]
         if arrival is not None and walls and not never_blocked(blocked):
             told = {True: "the walls' first reflection", False: "the straight line"}
+            lag = info["blocked_lag_ms"]
+            delay = f"the straight line plus {lag:.1f} ms" if lag else told[arrival[1]]
             print(f"  behind a wall, the first sound's direction from {told[arrival[0]]}, its delay from "
-                  f"{told[arrival[1]]} (as the training responses behind a wall say)")
+                  f"{delay} (as the training responses behind a wall say)")
+        elif info["blocked_lag_ms"] and not never_blocked(blocked):
+            print(f"  behind a wall, the first sound {info['blocked_lag_ms']:.1f} ms after the straight line "
+                  "(as the training responses behind a wall say)")
     if info["level_law_db"] is not None:
         c0, c1, c2 = info["level_law_db"]
         print(f"  direct sound's level: {c0:.1f} {'-' if c1 < 0 else '+'} {abs(c1):.1f} cos theta {'-' if c2 < 0 else '+'} "

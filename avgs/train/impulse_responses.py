@@ -490,6 +490,41 @@ class ImpulseResponseTraining:
         if self._log is not None:
             self._log.write(record)
 
+    def fit_lag(self, model: RIRModel) -> None:
+        """When the first sound behind a wall arrives (``RIRConfig.blocked_lag``): on the training pairs whose
+        straight path the points' test puts behind a wall, the median of their onsets after distance / c (at
+        least 0), into ``model``'s ``blocked_lag`` where distance / c plus it is closer to their onsets, by the
+        median absolute error, than what the model places there without it (the straight line, or the first
+        reflection: :meth:`_fit_arrival`); else 0. Needs :data:`~avgs.acoustics.early_reflections.ARRIVAL_PAIRS`
+        pairs behind a wall. After the straight path's test and the first reflection's fit."""
+        from avgs.acoustics.early_reflections import ARRIVAL_PAIRS
+
+        b, train = model.binauralizer, self.train_set
+        with torch.no_grad():
+            b.blocked_lag.zero_()
+        blocked = self._counts_on_paths(model, float(b.sight_radius), float(b.sight_margin)) >= float(b.sight_blocked)
+        at = np.nonzero(blocked)[0]
+        record = {"stage": "lag", "event": "fit", "pairs_behind": int(at.size), "lag_ms": 0.0}
+        if at.size >= ARRIVAL_PAIRS:
+            listener = torch.as_tensor(np.asarray(train.receiver)[at], dtype=torch.float64)
+            source = torch.as_tensor(np.asarray(train.source)[at], dtype=torch.float64)
+            yaw = torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64)[at]))
+            c = float(model.rir.sound_speed)
+            straight = torch.linalg.vector_norm(source - listener, dim=-1).numpy() / c  # [A] s
+            onsets = np.asarray(self._onsets, dtype=np.float64)[at]
+            lag = max(0.0, float(np.median(onsets - straight)))
+            with torch.no_grad():
+                placed = model.direct_sound(listener.to(model.points.X), yaw.to(model.points.X), source.to(model.points.X))
+            now = float(np.median(np.abs(placed.arrival.double().cpu().numpy() - onsets)))
+            lagged = float(np.median(np.abs(straight + lag - onsets)))
+            record.update({"onset_error_ms": [1e3 * now, 1e3 * lagged]})
+            if lagged < now:
+                record["lag_ms"] = 1e3 * lag
+                with torch.no_grad():
+                    b.blocked_lag.fill_(lag)
+        if self._log is not None:
+            self._log.write(record)
+
     def _counts_on_paths(self, model: RIRModel, radius: float, margin: float) -> np.ndarray:
         """How many of G_a's points lie along each training pair's straight path ``[M]`` (model units)."""
         from avgs.acoustics.line_of_sight import points_on_path
@@ -539,6 +574,8 @@ class ImpulseResponseTraining:
             self._fit_sight(model)
             if getattr(model.binauralizer, "reflecting_walls", None) is not None:
                 self.fit_reflections(model)
+            if getattr(model.binauralizer, "blocked_lag", None) is not None:
+                self.fit_lag(model)
         if not resumed and self._in_sight is not None and getattr(model.binauralizer, "wall_loss", None) is not None:
             self._fit_walls(model)
         if resumed:
