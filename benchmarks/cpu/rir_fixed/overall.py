@@ -1,0 +1,54 @@
+"""The six-preset overall (the mean of the three environments' means) with three_rooms on the fixed truth:
+the other five presets' scores from ../rir_defaults/reflections/runs (2026-11-28) and ../rir_defaults/baselines.json,
+three_rooms' from runs/ and baselines.json here. Prints a markdown table per split.
+
+    python benchmarks/cpu/rir_fixed/overall.py
+"""
+
+import json
+import statistics as st
+from collections import defaultdict
+from pathlib import Path
+
+HERE = Path(__file__).parent
+OLD = HERE.parent / "rir_defaults"
+ENVIRONMENT = {"rect_small": "rectangular", "rect_large": "rectangular", "l_room": "non-rectangular",
+               "u_room": "non-rectangular", "two_rooms": "multi-room", "three_rooms": "multi-room"}
+KEYS = (("t60_pct", "{:.1f}"), ("c50_db", "{:.2f}"), ("edt_s", "{:.3f}"), ("onset_ms", "{:.2f}"), ("itd_us", "{:.0f}"),
+        ("ild_db", "{:.2f}"), ("lat_pct", "{:.0f}"))
+
+
+def overall(scenes: dict[str, dict]) -> dict[str, float]:
+    envs = defaultdict(list)
+    for scene, m in scenes.items():
+        envs[ENVIRONMENT[scene]].append(m)
+    return {k: st.fmean(st.fmean(m[k] for m in ms) for ms in envs.values()) for k, _ in KEYS}
+
+
+def run_scores(path: Path, split: str) -> dict:
+    (m,) = json.loads(path.read_text())["after"][split].values()  # one scene: one environment
+    return m
+
+
+def main() -> None:
+    old, new = (json.loads((d / "baselines.json").read_text()) for d in (OLD, HERE))
+    for split in ("val", "heldout"):
+        print(f"\n{split}:\n\n| method | " + " | ".join(k for k, _ in KEYS) + " |\n|---|" + "---|" * len(KEYS))
+        for method in ("nearest", "linear"):
+            scenes = {s: m for s, m in old["splits"][split]["methods"][method]["scenes"].items() if s != "three_rooms"}
+            scenes["three_rooms"] = new["splits"][split]["methods"][method]["scenes"]["three_rooms_fixed"]
+            o = overall(scenes)
+            print(f"| {method} | " + " | ".join(f.format(o[k]) for k, f in KEYS) + " |")
+        for setting in ("avgs", "no-context"):
+            seeds = []
+            for k in range(3):
+                scenes = {p.name.split(f"-{setting}-")[0]: run_scores(p, split)
+                          for p in (OLD / "reflections" / "runs").glob(f"*-{setting}-seed{k}.spatial.json")}
+                scenes["three_rooms"] = run_scores(HERE / "runs" / f"three_rooms-{setting}-seed{k}.spatial.json", split)
+                seeds.append(overall(scenes))
+            print(f"| {setting} (3 seeds) | " + " | ".join(
+                f"{f.format(st.fmean(s[k] for s in seeds))} ± {f.format(st.stdev(s[k] for s in seeds))}" for k, f in KEYS) + " |")
+
+
+if __name__ == "__main__":
+    main()
