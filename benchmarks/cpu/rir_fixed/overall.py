@@ -1,6 +1,7 @@
-"""The six-preset overall (the mean of the three environments' means) with three_rooms on the fixed truth:
-the other five presets' scores from ../rir_defaults/reflections/runs (2026-11-28) and ../rir_defaults/baselines.json,
-three_rooms' from runs/ and baselines.json here. Prints a markdown table per split.
+"""The six-preset overall (the mean of the three environments' means) with the runs here in place of the old ones:
+each preset's scores from runs/ and baselines.json here where they are (three_rooms on the fixed truth; two_rooms,
+u_room and l_room with this code), else from ../rir_defaults/reflections/runs (2026-11-28) and
+../rir_defaults/baselines.json. Prints a markdown table per split, and which presets came from where.
 
     python benchmarks/cpu/rir_fixed/overall.py
 """
@@ -35,19 +36,25 @@ def main() -> None:
     for split in ("val", "heldout"):
         print(f"\n{split}:\n\n| method | " + " | ".join(k for k, _ in KEYS) + " |\n|---|" + "---|" * len(KEYS))
         for method in ("nearest", "linear"):
-            scenes = {s: m for s, m in old["splits"][split]["methods"][method]["scenes"].items() if s != "three_rooms"}
-            scenes["three_rooms"] = new["splits"][split]["methods"][method]["scenes"]["three_rooms_fixed"]
+            scenes = dict(old["splits"][split]["methods"][method]["scenes"])
+            for scene, m in new["splits"][split]["methods"][method]["scenes"].items():
+                scenes[scene.removesuffix("_fixed")] = m
             o = overall(scenes)
             print(f"| {method} | " + " | ".join(f.format(o[k]) for k, f in KEYS) + " |")
         for setting in ("avgs", "no-context"):
             seeds = []
             for k in range(3):
-                scenes = {p.name.split(f"-{setting}-")[0]: run_scores(p, split)
-                          for p in (OLD / "reflections" / "runs").glob(f"*-{setting}-seed{k}.spatial.json")}
-                scenes["three_rooms"] = run_scores(HERE / "runs" / f"three_rooms-{setting}-seed{k}.spatial.json", split)
+                scenes = {}
+                for folder in (OLD / "reflections" / "runs", HERE / "runs"):  # the runs here last: they replace
+                    scenes.update({p.name.split(f"-{setting}-seed")[0]: run_scores(p, split)
+                                   for p in folder.glob(f"*-{setting}-seed{k}.spatial.json")})
                 seeds.append(overall(scenes))
             print(f"| {setting} (3 seeds) | " + " | ".join(
                 f"{f.format(st.fmean(s[k] for s in seeds))} ± {f.format(st.stdev(s[k] for s in seeds))}" for k, f in KEYS) + " |")
+
+
+    here = sorted({p.name.split("-")[0] for p in (HERE / "runs").glob("*.spatial.json")})
+    print(f"\nfrom runs/ here: {', '.join(here)}; the rest from ../rir_defaults/reflections/runs")
 
 
 if __name__ == "__main__":
