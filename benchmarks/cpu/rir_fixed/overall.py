@@ -26,8 +26,8 @@ def overall(scenes: dict[str, dict]) -> dict[str, float]:
     return {k: st.fmean(st.fmean(m[k] for m in ms) for ms in envs.values()) for k, _ in KEYS}
 
 
-def run_scores(path: Path, split: str) -> dict:
-    (m,) = json.loads(path.read_text())["after"][split].values()  # one scene: one environment
+def run_scores(path: Path, split: str, when: str = "after") -> dict:
+    (m,) = json.loads(path.read_text())[when][split].values()  # one scene: one environment
     return m
 
 
@@ -41,15 +41,16 @@ def main() -> None:
                 scenes[scene.removesuffix("_fixed")] = m
             o = overall(scenes)
             print(f"| {method} | " + " | ".join(f.format(o[k]) for k, f in KEYS) + " |")
-        for setting in ("avgs", "no-context"):
+        for setting, when in (("avgs", "before"), ("avgs", "after"), ("no-context", "before"), ("no-context", "after")):
             seeds = []
             for k in range(3):
                 scenes = {}
                 for folder in (OLD / "reflections" / "runs", HERE / "runs"):  # the runs here last: they replace
-                    scenes.update({p.name.split(f"-{setting}-seed")[0]: run_scores(p, split)
+                    scenes.update({p.name.split(f"-{setting}-seed")[0]: run_scores(p, split, when)
                                    for p in folder.glob(f"*-{setting}-seed{k}.spatial.json")})
                 seeds.append(overall(scenes))
-            print(f"| {setting} (3 seeds) | " + " | ".join(
+            label = setting + (", direct sound left to B" if when == "before" else "")
+            print(f"| {label} (3 seeds) | " + " | ".join(
                 f"{f.format(st.fmean(s[k] for s in seeds))} ± {f.format(st.stdev(s[k] for s in seeds))}" for k, f in KEYS) + " |")
 
 
