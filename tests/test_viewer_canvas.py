@@ -64,11 +64,11 @@ def test_the_release_of_a_drag_gives_its_pose_a_whole_hold(qtbot, canvas):
     before = canvas.frames
     canvas.set_dragging(True)
     canvas.render()  # a move's frame, held behind the moves' filters
-    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.9))
+    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.5))  # half a hold: a loaded host's late timers leave a margin
     assert canvas.frames == before
     canvas.set_dragging(False)  # the release: its pose's filter is being made
     canvas.render()
-    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.6))  # past the drag's hold (due 0.1 HOLD_MAX_S after the release)
+    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.6))  # past the drag's hold (1.1 HOLD_MAX_S since it began, at least)
     assert canvas.frames == before
     busy["on"] = False
     qtbot.waitUntil(lambda: canvas.frames == before + 1, timeout=2_000)
