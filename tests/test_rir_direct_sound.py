@@ -504,23 +504,37 @@ def test_training_finds_the_walls_and_their_reflections_explain_the_early_ild(re
     assert np.median(np.abs(given - measured)) < 0.6 * np.median(np.abs(alone - measured))  # 0.7 against 1.8 dB
 
 
+def _partition_model(renderer):
+    """A copy of ``renderer``'s model whose G_a is a partition at x = 3 (y < 2, 2.5 m high, two faces 0.12 m
+    apart) and whose straight path's test counts it: a path across it below y = 2 is behind a wall."""
+    import copy
+
+    model = copy.deepcopy(renderer.model)
+    u = np.arange(0.0, 6.05, 0.1)
+    yy, zz = np.meshgrid(u[u <= 2.0], u[u <= 2.5])
+    partition = [np.stack([np.full(yy.size, x), yy.ravel(), zz.ravel()], -1) for x in (3.0, 3.12)]
+    model.points.X.data = torch.as_tensor(np.concatenate(partition), dtype=model.points.X.dtype)
+    with torch.no_grad():
+        for name, value in (("sight_radius", 0.2), ("sight_margin", 0.3), ("sight_blocked", 20.0)):
+            getattr(model.binauralizer, name).fill_(value)
+        if getattr(model.binauralizer, "reflected_arrival", None) is not None:
+            model.binauralizer.reflected_arrival.zero_()
+    return model
+
+
 def test_behind_a_wall_the_first_sound_comes_by_the_reflection_that_passes_the_opening(renderer):
     """A partition at x = 3 (y < 2, open above) between a listener facing +x and a source straight ahead:
     with ``reflected_arrival`` the direct sound arrives along the y = 4 wall's reflection, which passes the
     opening (its path / c, the ITD of its image source on the left: the right ear later), or with its
     direction alone; off, along the straight line with no ITD. The quick room's own training has no pair
     behind a wall: its fit says so and keeps the straight line."""
-    import copy
-
     assert renderer.config.rir.reflected_arrival and renderer.model.binauralizer.reflected_arrival.tolist() == [0.0, 0.0]
-    model = copy.deepcopy(renderer.model)
+    model = _partition_model(renderer)
     b = model.binauralizer
     u = np.arange(0.0, 6.05, 0.1)
-    yy, zz = np.meshgrid(u[u <= 2.0], u[u <= 2.5])
-    partition = [np.stack([np.full(yy.size, x), yy.ravel(), zz.ravel()], -1) for x in (3.0, 3.12)]
     xx, zz = np.meshgrid(u, u[u <= 2.5])
     wall = np.stack([xx.ravel(), np.full(xx.size, 4.0), zz.ravel()], -1)  # the y = 4 wall
-    model.points.X.data = torch.as_tensor(np.concatenate(partition + [wall]), dtype=model.points.X.dtype)
+    model.points.X.data = torch.cat([model.points.X.data, torch.as_tensor(wall, dtype=model.points.X.dtype)])
     with torch.no_grad():
         for name, value in (("sight_radius", 0.2), ("sight_margin", 0.3), ("sight_blocked", 20.0), ("reflection_radius", 0.3),
                             ("reflection_points", 3.0), ("reflection_band", 0.3), ("reflected_arrival", 1.0)):  # both
@@ -548,24 +562,6 @@ def test_behind_a_wall_the_first_sound_comes_by_the_reflection_that_passes_the_o
     assert direction.arrival.item() == pytest.approx(3.5 / c) and direction.delays[0].tolist() == pytest.approx([0.0, tau])
     assert straight.arrival.item() == pytest.approx(3.5 / c)
     assert straight.delays[0].abs().max().item() < 1e-6  # straight ahead: no ITD
-
-
-def _partition_model(renderer):
-    """A copy of ``renderer``'s model whose G_a is a partition at x = 3 (y < 2, 2.5 m high, two faces 0.12 m
-    apart) and whose straight path's test counts it: a path across it below y = 2 is behind a wall."""
-    import copy
-
-    model = copy.deepcopy(renderer.model)
-    u = np.arange(0.0, 6.05, 0.1)
-    yy, zz = np.meshgrid(u[u <= 2.0], u[u <= 2.5])
-    partition = [np.stack([np.full(yy.size, x), yy.ravel(), zz.ravel()], -1) for x in (3.0, 3.12)]
-    model.points.X.data = torch.as_tensor(np.concatenate(partition), dtype=model.points.X.dtype)
-    with torch.no_grad():
-        for name, value in (("sight_radius", 0.2), ("sight_margin", 0.3), ("sight_blocked", 20.0)):
-            getattr(model.binauralizer, name).fill_(value)
-        if getattr(model.binauralizer, "reflected_arrival", None) is not None:
-            model.binauralizer.reflected_arrival.zero_()
-    return model
 
 
 def test_behind_a_wall_the_first_sound_arrives_the_fitted_lag_after_the_straight_line(renderer):
@@ -604,6 +600,7 @@ def test_the_lag_is_fitted_to_the_training_pairs_behind_a_wall(renderer, through
     task = SimpleNamespace(train_set=SimpleNamespace(receiver=receiver, source=source, yaw=rng.uniform(0, 360, n)),
                            _log=None)
     task._counts_on_paths = lambda m, r, g: ImpulseResponseTraining._counts_on_paths(task, m, r, g)
+    task._behind_a_wall = lambda m: ImpulseResponseTraining._behind_a_wall(task, m)
     blocked = task._counts_on_paths(model, 0.2, 0.3) >= 20
     assert 10 <= int(blocked.sum()) <= n - 10  # both sides hold pairs
     c = model.rir.sound_speed

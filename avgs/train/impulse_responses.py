@@ -460,13 +460,8 @@ class ImpulseResponseTraining:
         the better one, and the onsets say so."""
         from avgs.acoustics.early_reflections import first_reflection, image_directions, reflection_first
 
-        b, train = model.binauralizer, self.train_set
-        blocked = torch.as_tensor(self._counts_on_paths(model, float(b.sight_radius), float(b.sight_margin))
-                                  >= float(b.sight_blocked))  # [M] the deployment's test
-        at = torch.nonzero(blocked, as_tuple=True)[0]
-        listener = torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64)[at]
-        source = torch.as_tensor(np.asarray(train.source), dtype=torch.float64)[at]
-        yaw = torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64)))[at]
+        b = model.binauralizer
+        at, listener, source, yaw = self._behind_a_wall(model)
         setup = model.reflection_setup()
         record = {"stage": "arrival", "event": "fit", "pairs_behind": int(at.numel()), "with_reflection": 0,
                   "direction": False, "delay": False}
@@ -499,19 +494,15 @@ class ImpulseResponseTraining:
         pairs behind a wall. After the straight path's test and the first reflection's fit."""
         from avgs.acoustics.early_reflections import ARRIVAL_PAIRS
 
-        b, train = model.binauralizer, self.train_set
+        b = model.binauralizer
         with torch.no_grad():
             b.blocked_lag.zero_()
-        blocked = self._counts_on_paths(model, float(b.sight_radius), float(b.sight_margin)) >= float(b.sight_blocked)
-        at = np.nonzero(blocked)[0]
-        record = {"stage": "lag", "event": "fit", "pairs_behind": int(at.size), "lag_ms": 0.0}
-        if at.size >= ARRIVAL_PAIRS:
-            listener = torch.as_tensor(np.asarray(train.receiver)[at], dtype=torch.float64)
-            source = torch.as_tensor(np.asarray(train.source)[at], dtype=torch.float64)
-            yaw = torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64)[at]))
+        at, listener, source, yaw = self._behind_a_wall(model)
+        record = {"stage": "lag", "event": "fit", "pairs_behind": int(at.numel()), "lag_ms": 0.0}
+        if at.numel() >= ARRIVAL_PAIRS:
             c = float(model.rir.sound_speed)
             straight = torch.linalg.vector_norm(source - listener, dim=-1).numpy() / c  # [A] s
-            onsets = np.asarray(self._onsets, dtype=np.float64)[at]
+            onsets = np.asarray(self._onsets, dtype=np.float64)[at.numpy()]
             lag = max(0.0, float(np.median(onsets - straight)))
             with torch.no_grad():
                 placed = model.direct_sound(listener.to(model.points.X), yaw.to(model.points.X), source.to(model.points.X))
@@ -524,6 +515,18 @@ class ImpulseResponseTraining:
                     b.blocked_lag.fill_(lag)
         if self._log is not None:
             self._log.write(record)
+
+    def _behind_a_wall(self, model: RIRModel) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The training pairs whose straight path the points' test puts behind a wall (the deployment's test):
+        their indices ``[A]``, listeners and sources ``[A, 3]`` (float64, model units) and yaws ``[A]`` radians."""
+        b, train = model.binauralizer, self.train_set
+        blocked = torch.as_tensor(self._counts_on_paths(model, float(b.sight_radius), float(b.sight_margin))
+                                  >= float(b.sight_blocked))  # [M]
+        at = torch.nonzero(blocked, as_tuple=True)[0]
+        listener = torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64)[at]
+        source = torch.as_tensor(np.asarray(train.source), dtype=torch.float64)[at]
+        yaw = torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64)))[at]
+        return at, listener, source, yaw
 
     def _counts_on_paths(self, model: RIRModel, radius: float, margin: float) -> np.ndarray:
         """How many of G_a's points lie along each training pair's straight path ``[M]`` (model units)."""

@@ -52,8 +52,6 @@ def main() -> None:
             label = setting + (", direct sound left to B" if when == "before" else "")
             print(f"| {label} (3 seeds) | " + " | ".join(
                 f"{f.format(st.fmean(s[k] for s in seeds))} ± {f.format(st.stdev(s[k] for s in seeds))}" for k, f in KEYS) + " |")
-
-
     here = sorted({p.name.split("-")[0] for p in (HERE / "runs").glob("*.spatial.json")})
     print(f"\nfrom runs/ here: {', '.join(here)}; the rest from ../rir_defaults/reflections/runs")
 
