@@ -36,10 +36,17 @@ def test_many_render_requests_cost_one_paint(qtbot, canvas):
     assert canvas.frames == before + 1
 
 
-def test_a_paint_waits_while_the_audio_path_is_busy_then_draws(qtbot, canvas):
+def settle(qtbot, canvas) -> dict:
+    """Let the fixture's own paints land, then make the audio path busy: a paint still pending when the hold
+    began would be held and drawn HOLD_MAX_S later, in the middle of the test. Returns the hold's switch."""
+    qtbot.wait(100)
     busy = {"on": True}
     canvas.hold = lambda: busy["on"]
-    qtbot.wait(100)
+    return busy
+
+
+def test_a_paint_waits_while_the_audio_path_is_busy_then_draws(qtbot, canvas):
+    busy = settle(qtbot, canvas)
     before = canvas.frames
     canvas.render()
     qtbot.wait(int(HOLD_MAX_S * 1000 * 0.4))
@@ -58,13 +65,11 @@ def test_the_release_of_a_drag_gives_its_pose_a_whole_hold(qtbot, canvas):
     """A drag's moves kept the audio path busy for most of a hold when the handle is let go: the released
     pose's filter still gets a whole HOLD_MAX_S before a paint takes the cores (the hold's clock starts
     again at the release), and the frame is drawn once the filter is made."""
-    busy = {"on": True}
-    canvas.hold = lambda: busy["on"]
-    qtbot.wait(100)
+    busy = settle(qtbot, canvas)
     before = canvas.frames
     canvas.set_dragging(True)
     canvas.render()  # a move's frame, held behind the moves' filters
-    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.5))  # half a hold: a loaded host's late timers leave a margin
+    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.5))  # half a hold
     assert canvas.frames == before
     canvas.set_dragging(False)  # the release: its pose's filter is being made
     canvas.render()
