@@ -98,3 +98,26 @@ def test_decayed_power_leaves_the_state_it_was_given_alone():
     state = torch.ones(1, 3)
     decayed_power(torch.ones(1, 4, 3), torch.full((3,), 0.5), state)
     assert torch.equal(state, torch.ones(1, 3))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("length", [1, 100, 255, 300, 7000, 22050])
+def test_overlap_add_and_padding_equal_the_torch_expressions(dtype, length):
+    """FrameGrid's inverse STFT and its padding: the loops (overlap_add, reflect_ends) give the numbers
+    of the torch expressions they replace bit for bit (those run under autograd), for a batch of
+    signals, a few frames (every sample near an end) and many."""
+    from avgs import dsp
+    from avgs.dsp.phase_retrieval import FrameGrid
+
+    n = dsp.n_frames(length)
+    grid = FrameGrid(n, dtype=dtype)
+    complex_dtype = torch.complex128 if dtype == torch.float64 else torch.complex64
+    spec = _spec((2, 3, n, 257), complex_dtype, seed=length)
+    loop = grid.synthesise(spec)
+    expression = grid.synthesise(spec.clone().requires_grad_(True)).detach()
+    assert loop.shape == (2, 3, grid.padded_length) and torch.equal(loop, expression)
+    with torch.no_grad():
+        padded = grid.pad_ends(loop.clone(), length)  # the loop: in place, no graph
+    reference = grid.pad_ends(loop.clone().requires_grad_(True) * 1.0, length).detach()
+    assert torch.equal(padded, reference)
+    assert torch.equal(grid.waveform(padded, length), grid.waveform(loop, length))  # the waveform itself untouched

@@ -1,16 +1,20 @@
 """Fused loops on the CPU for the synthesis' per-element work, compiled by numba.
 
 Torch runs each element-wise step as its own pass over memory, with its own dispatch.
-Two steps of every render are long chains of such passes over small arrays:
+Three steps of every render are long chains of such passes over small arrays:
 
 - the phase retrieval's magnitude projection, ``target * X / |X|`` on a spectrogram:
   |X|^2, its floor, 1/sqrt, times the target, a complex copy of the scale, the product
   (six passes, ten times a render);
 - the tail's decayed power ``P(t) = w (P(t-1) + |S(t-1)|^2)``: by torch an FFT convolution
-  along frames padded to twice the tail, or a Python loop over frames.
+  along frames padded to twice the tail, or a Python loop over frames;
+- the inverse STFT's overlap-add (:class:`avgs.dsp.phase_retrieval.FrameGrid`): a zeroed buffer,
+  an accumulation per overlapping frame and the corrections at both ends, and the reflected
+  padding of the STFT that follows it (eleven and ten times a render).
 
-:func:`project_magnitudes` and :func:`decayed_power` do each as one loop (a render of a
-1 s clip: the projection 8 us instead of 40, the tail 5 us instead of 120 on our 2 cores).
+:func:`project_magnitudes`, :func:`decayed_power`, :func:`overlap_add` and :func:`reflect_ends`
+do each as one loop (a render of a 1 s clip: the projection 8 us instead of 40, the tail 5 us
+instead of 120 on our 2 cores; the overlap-add 17 us instead of 55, the padding 5 instead of 13).
 They take torch tensors; on the CPU the loops run on their memory, elsewhere (CUDA) the
 torch expressions run, which are also the reference the loops are tested against
 (tests/test_kernels.py). The loops compile once per dtype on first use (about a second)
@@ -55,7 +59,57 @@ def _decayed(power, decay, state, out):  # pragma: no cover - compiled
                 acc[f] = a + p[f]
 
 
-def _on_cpu(*tensors: torch.Tensor) -> bool:
+@njit(**_LOOP)
+def _overlap_add_row(frames, window, head, tail, out):  # pragma: no cover - compiled
+    """One signal of :func:`_overlap_add`: frames [N, R hop], out [(N + R - 1) hop]."""
+    n = frames.shape[0]
+    overlap, hop = window.shape
+    length, edge = out.shape[0], head.shape[0]
+    for i in range(length):
+        out[i] = 0.0
+    for r in range(overlap):  # torch's order: each sample sums its frames by r
+        off = r * hop
+        for t in range(n):
+            base = (t + r) * hop
+            for j in range(hop):
+                out[base + j] += frames[t, off + j] * window[r, j]
+    for i in range(edge):
+        out[i] *= head[i]
+    if edge < length:
+        for i in range(edge):
+            out[length - edge + i] *= tail[i]
+
+
+@njit(**_LOOP)
+def _overlap_add(frames, window, head, tail, out):  # pragma: no cover - compiled
+    """out[m, (t + r) hop + j] = sum_r frames[m, t, r hop + j] window[r, j], then the ends scaled:
+    frames [M, N, R hop]; window [R, hop]; head, tail [E]; out [M, (N + R - 1) hop]."""
+    for m in range(frames.shape[0]):
+        _overlap_add_row(frames[m], window, head, tail, out[m])
+
+
+@njit(**_LOOP)
+def _reflect_ends(z, pad, length):  # pragma: no cover - compiled
+    """z [M, P]'s first ``pad`` samples and those after ``pad + length`` rewritten in place as the
+    centred STFT pads the waveform z[:, pad : pad + length] (reflected; zeros under half a window)."""
+    m_rows, total = z.shape
+    right = total - (pad + length)
+    for m in range(m_rows):
+        x = z[m]
+        if length > pad:
+            for i in range(pad):
+                x[i] = x[2 * pad - i]
+            for i in range(right):
+                x[pad + length + i] = x[pad + length - 2 - i]
+        else:
+            for i in range(pad):
+                x[i] = 0.0
+            for i in range(right):
+                x[pad + length + i] = 0.0
+
+
+def on_cpu(*tensors: torch.Tensor) -> bool:
+    """Whether the loops take ``tensors``: all in the CPU's memory and none needing a gradient."""
     return all(t.device.type == "cpu" and not t.requires_grad for t in tensors)
 
 
@@ -65,7 +119,7 @@ def project_magnitudes(spec: torch.Tensor, target: torch.Tensor | None = None) -
     ``spec`` is 0 gives 0 (its magnitude is floored at the dtype's smallest normal number)."""
     real = torch.float64 if spec.dtype == torch.complex128 else torch.float32
     floor = torch.finfo(real).tiny
-    if not _on_cpu(spec) or (target is not None and (not _on_cpu(target) or target.dtype != real)):
+    if not on_cpu(spec) or (target is not None and (not on_cpu(target) or target.dtype != real)):
         scale = (spec * spec.conj()).real.clamp_min(floor).rsqrt_()
         return spec * (scale if target is None else scale.mul_(target))
     n_freq = spec.shape[-1]
@@ -89,7 +143,7 @@ def decayed_power(power: torch.Tensor, decay: torch.Tensor, state: torch.Tensor 
     """
     lead, (n, n_freq) = power.shape[:-2], power.shape[-2:]
     acc = torch.zeros(*lead, n_freq, dtype=power.dtype, device=power.device) if state is None else state.clone()
-    if not _on_cpu(power, decay, acc):
+    if not on_cpu(power, decay, acc):
         out = torch.empty_like(power)
         for t in range(n):
             acc = acc * decay
@@ -101,3 +155,26 @@ def decayed_power(power: torch.Tensor, decay: torch.Tensor, state: torch.Tensor 
     _decayed(power.contiguous().reshape(-1, n, n_freq).numpy(), decay.to(power.dtype).contiguous().numpy(),
              flat.numpy(), out.view(-1, n, n_freq).numpy())
     return out, flat.view(acc.shape)
+
+
+def overlap_add(frames: torch.Tensor, window: torch.Tensor, head: torch.Tensor, tail: torch.Tensor) -> torch.Tensor:
+    """The inverse STFT's windowed overlap-add on the CPU (the loop; callers keep the torch form
+    for other devices and autograd): ``frames`` [..., N, R hop] real, ``window`` [R, hop] (the
+    synthesis window over the window-sum), ``head`` / ``tail`` [E] the corrections of the first
+    and last E samples. Returns the padded signal [..., (N + R - 1) hop]."""
+    lead, (n, width) = frames.shape[:-2], frames.shape[-2:]
+    overlap, hop = window.shape
+    out = torch.empty(*lead, (n + overlap - 1) * hop, dtype=frames.dtype)
+    _overlap_add(frames.contiguous().reshape(-1, n, width).numpy(), window.contiguous().numpy(),
+                 head.contiguous().numpy(), tail.contiguous().numpy(), out.view(-1, out.shape[-1]).numpy())
+    return out
+
+
+
+def reflect_ends(z: torch.Tensor, pad: int, length: int) -> torch.Tensor:
+    """On the CPU, ``z`` [..., P] (contiguous) with its ``pad`` first samples and those after
+    ``pad + length`` rewritten in place as the centred STFT pads the waveform between them:
+    reflected at both ends (without repeating the end sample), zeros when the waveform is not
+    longer than ``pad``. Returns ``z``."""
+    _reflect_ends(z.view(-1, z.shape[-1]).numpy(), int(pad), int(length))
+    return z

@@ -25,7 +25,7 @@ import functools
 import torch
 
 from avgs.config import STFT, STFTConfig
-from avgs.dsp.kernels import project_magnitudes
+from avgs.dsp.kernels import on_cpu, overlap_add, project_magnitudes, reflect_ends
 
 GRIFFIN_LIM_BLOCK_FRAMES = 4096
 "Frames per block of :func:`griffin_lim` on long inputs (about 24 s at AV-NeRF's hop): memory stays bounded."
@@ -83,9 +83,13 @@ class FrameGrid:
 
     def synthesise(self, spec: torch.Tensor) -> torch.Tensor:
         """Padded signal ``[..., padded_length]`` of a spectrogram ``[..., N, F]``: windowed
-        overlap-add divided by the window-sum (``torch.istft``'s inverse)."""
+        overlap-add divided by the window-sum (``torch.istft``'s inverse). On the CPU the
+        overlap-add and the ends' corrections are one loop (:func:`avgs.dsp.kernels.overlap_add`)."""
         lead, n, hop = spec.shape[:-2], self.n_frames, self.cfg.hop_length
-        frames = torch.fft.irfft(spec, self.cfg.n_fft).view(*lead, n, self.overlap, hop)  # [..., N, R, hop]
+        frames = torch.fft.irfft(spec, self.cfg.n_fft)  # [..., N, n_fft]
+        if on_cpu(frames):
+            return overlap_add(frames, self._synthesis_window, self._head, self._tail)
+        frames = frames.view(*lead, n, self.overlap, hop)  # [..., N, R, hop]
         out = torch.zeros(*lead, n + self.overlap - 1, hop, dtype=frames.dtype, device=frames.device)
         for q in range(self.overlap):
             out[..., q : q + n, :].addcmul_(frames[..., q, :], self._synthesis_window[q])
@@ -99,6 +103,8 @@ class FrameGrid:
         """``z`` with its padding rewritten in place as :func:`avgs.dsp.stft` pads the waveform of
         ``length`` samples in it (reflected at both ends; zeros when it is too short to reflect)."""
         pad = self.cfg.n_fft // 2
+        if on_cpu(z) and z.is_contiguous() and not z.is_complex() and not torch.is_grad_enabled():  # in place: no graph to keep
+            return reflect_ends(z, pad, length)
         x = z[..., pad : pad + length]
         right = z.shape[-1] - (pad + length)  # <= pad: the last frame ends before the STFT's padding does
         if length > pad:
