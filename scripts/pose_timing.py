@@ -1,12 +1,15 @@
 """Median time (ms) of a pose's render, filter and masks on the bundled demo and a one-source checkpoint,
-for comparing two checkouts side by side (run alternately, one thread each: the host's load moves timings).
+for comparing two checkouts side by side (run alternately: the host's load moves timings).
 
+    git worktree add /tmp/old OLD_COMMIT
     for i in 1 2 3 4 5; do
-      PYTHONPATH=OLD_CHECKOUT OMP_NUM_THREADS=1 .venv/bin/python scripts/pose_timing.py ONE_SOURCE.ckpt >> old.jsonl
+      OMP_NUM_THREADS=1 .venv/bin/python scripts/pose_timing.py ONE_SOURCE.ckpt --checkout /tmp/old >> old.jsonl
       OMP_NUM_THREADS=1 .venv/bin/python scripts/pose_timing.py ONE_SOURCE.ckpt >> new.jsonl
     done
 
-Prints one JSON line: the avgs it imported and, per checkpoint and call, the median over 3 x 40 poses.
+``--checkout DIR`` imports avgs from DIR instead of this venv's install (whose editable finder
+would otherwise win over PYTHONPATH); ``--threads N`` (default 1). Prints one JSON line: the avgs
+it imported and, per checkpoint and call, the median over 3 x 40 poses.
 """
 
 from __future__ import annotations
@@ -20,13 +23,25 @@ from pathlib import Path
 import numpy as np
 import torch
 
-import avgs
-
 DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo" / "scene.ckpt"
 
 
-def main(one_source: str) -> None:
-    torch.set_num_threads(1)
+def _import_from(checkout: str | None):
+    """avgs from ``checkout`` (a source tree) when given, ahead of the editable install's finder."""
+    if checkout:
+        sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__module__.lower()
+                            and "editable" not in repr(f).lower()]
+        sys.path.insert(0, str(Path(checkout).resolve()))
+    import avgs
+
+    if checkout and not Path(avgs.__file__).resolve().is_relative_to(Path(checkout).resolve()):
+        sys.exit(f"imported {avgs.__file__}, not the checkout {checkout}")
+    return avgs
+
+
+def main(one_source: str, checkout: str | None = None, threads: int = 1) -> None:
+    avgs = _import_from(checkout)
+    torch.set_num_threads(threads)
     warnings.simplefilter("ignore")
     out = {"avgs": avgs.__file__}
     rng = np.random.default_rng(0)
@@ -51,6 +66,11 @@ def main(one_source: str) -> None:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 2:
-        sys.exit(__doc__)
-    main(sys.argv[1])
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("one_source", help="a one-source (binaural-task) checkpoint")
+    parser.add_argument("--checkout", help="import avgs from this source tree")
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args()
+    main(args.one_source, args.checkout, args.threads)
