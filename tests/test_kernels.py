@@ -38,6 +38,10 @@ def test_projection_equals_the_torch_expression(dtype):
         expression = project_magnitudes(spec, t.clone().requires_grad_(True)).detach()
         torch.testing.assert_close(loop, expression, rtol=4 * eps, atol=0.0)
         assert bool((loop[0, 1, 5, :7] == 0).all())
+    column = torch.rand(257, 1, dtype=real)  # as many numbers as a row, broadcast along the other axis
+    square = _spec((257, 257), dtype, seed=1)
+    torch.testing.assert_close(project_magnitudes(square, column),
+                               project_magnitudes(square, column.clone().requires_grad_(True)).detach(), rtol=4 * eps, atol=0.0)
     unit = project_magnitudes(spec)
     nonzero = spec != 0
     torch.testing.assert_close(unit.abs()[nonzero], torch.ones_like(unit.abs()[nonzero]), rtol=4 * eps, atol=0.0)

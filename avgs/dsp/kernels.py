@@ -34,10 +34,12 @@ _LOOP = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False,
 
 @njit(**_LOOP)
 def _project(spec, target, floor, out):  # pragma: no cover - compiled
-    """out = target * spec / max(|spec|, sqrt(floor)); spec, out: [M, 2F] (re, im interleaved); target [M, F]."""
-    m_rows, n_freq = target.shape
+    """out = target * spec / max(|spec|, sqrt(floor)); spec, out: [M, 2F] (re, im interleaved); target [M, F]
+    or [1, F] (the same row for all)."""
+    m_rows, n_freq = spec.shape[0], target.shape[1]
+    shared = target.shape[0] == 1
     for m in range(m_rows):
-        x, tg, o = spec[m], target[m], out[m]
+        x, tg, o = spec[m], target[0 if shared else m], out[m]
         for f in range(n_freq):
             re, im = x[2 * f], x[2 * f + 1]
             s = tg[f] / np.sqrt(max(re * re + im * im, floor))
@@ -123,16 +125,20 @@ def project_magnitudes(spec: torch.Tensor, target: torch.Tensor | None = None) -
         scale = (spec * spec.conj()).real.clamp_min(floor).rsqrt_()
         return spec * (scale if target is None else scale.mul_(target))
     n_freq = spec.shape[-1]
-    x = torch.view_as_real(spec.contiguous()).reshape(-1, 2 * n_freq).numpy()
-    out = torch.empty(spec.shape, dtype=spec.dtype)
-    o = torch.view_as_real(out).view(-1, 2 * n_freq).numpy()
-    rows = x.shape[0]
-    if target is None:  # unit phasors: a target of ones, broadcast (no array of them is made)
-        tg = np.broadcast_to(np.ones(1, dtype=x.dtype), (rows, n_freq))
+    c = spec.contiguous().numpy()  # complex; its numbers (re, im) interleaved, viewed as [rows, 2F] below
+    rows = c.size // n_freq
+    x = c.reshape(rows, n_freq).view(c.real.dtype)
+    o = np.empty_like(x)
+    if target is None:  # unit phasors: one row of ones for all
+        tg = np.ones((1, n_freq), dtype=x.dtype)
+    elif target.shape == spec.shape:
+        tg = target.contiguous().numpy().reshape(rows, n_freq)
+    elif target.shape[-1] == n_freq and target.numel() == n_freq:  # one row for all (as broadcasting it)
+        tg = target.contiguous().numpy().reshape(1, n_freq)
     else:
-        tg = target.expand(spec.shape).contiguous().reshape(rows, n_freq).numpy()
+        tg = target.expand(spec.shape).contiguous().numpy().reshape(rows, n_freq)
     _project(x, tg, x.dtype.type(floor), o)
-    return out
+    return torch.from_numpy(o.view(c.dtype).reshape(spec.shape))
 
 
 def decayed_power(power: torch.Tensor, decay: torch.Tensor, state: torch.Tensor | None = None):
