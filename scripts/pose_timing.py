@@ -7,8 +7,8 @@ for comparing two checkouts side by side (run alternately: the host's load moves
       OMP_NUM_THREADS=1 .venv/bin/python scripts/pose_timing.py ONE_SOURCE.ckpt >> new.jsonl
     done
 
-``--checkout DIR`` imports avgs from DIR instead of this venv's install (whose editable finder
-would otherwise win over PYTHONPATH); ``--threads N`` (default 1). Prints one JSON line: the avgs
+``--checkout DIR`` imports avgs from DIR only (with PYTHONPATH=DIR, a module that DIR lacks would
+still come from this venv's editable install, silently); ``--threads N`` (default 1). Prints one JSON line: the avgs
 it imported and, per checkpoint and call, the median over 3 x 40 poses.
 """
 
