@@ -7,8 +7,10 @@ and ``fit_reflections``); the weights and every other buffer stay (no fit depend
 checkpoints trained before these existed (the tables of docs/results.md, the bundled demo).
 ``--no-level``: without the level law; ``--no-reflections``: without the walls' reflections; ``--no-arrival``:
 without the first reflection's arrival behind a wall (``RIRConfig.reflected_arrival``); ``--no-lag``: without the
-first sound's lag behind a wall (``RIRConfig.blocked_lag``); ``--local``: with
-the local correction (off by default since the walls' reflections: ``RIRConfig.ild_local``).
+first sound's lag behind a wall (``RIRConfig.blocked_lag``); ``--no-blocked-ild``: without the early ILD's
+factor behind a wall (``RIRConfig.blocked_ild``, fitted with the checkpoint's own B); ``--local``: with
+the local correction (off by default since the walls' reflections: ``RIRConfig.ild_local``). ``--blocked-ild-only``:
+the checkpoint as it is but for that factor (what it adds, measured alone).
 
     python scripts/rir_refit.py data/rir/two_rooms runs/two_rooms.ckpt runs/two_rooms.refit.ckpt
 """
@@ -32,13 +34,16 @@ class _Quiet:
 
 
 def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, reflections: bool = True,
-          local: bool = False, arrival: bool = True, lag: bool = True) -> str:
+          local: bool = False, arrival: bool = True, lag: bool = True, blocked_ild: bool = True,
+          only_blocked_ild: bool = False) -> str:
     """Write ``out_path``: ``ckpt_path`` with the level law (``level``), the walls' reflections
     (``reflections``; with ``arrival`` also behind a wall) and the early ILD's local correction (``local``)
     fitted on ``scene_dir``, and behind a wall the first sound's lag (``lag``, ``RIRConfig.blocked_lag``), each left
     out when not asked for; what was added, in words."""
     data = load_checkpoint(ckpt_path)
     cfg = config_of(data)
+    if only_blocked_ild:
+        return _fit_blocked_ild(scene_dir, data, ckpt_path, out_path)
     if not (cfg.rir.direct_sound and cfg.rir.direct_ild):
         raise SystemExit(f"{ckpt_path}: no ILD law to refit (direct_sound and direct_ild must be on)")
     cfg.rir.ild_local = local
@@ -92,16 +97,46 @@ def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, ref
         task.fit_lag(renderer.model)
         data["binauralizer"]["blocked_lag"] = renderer.model.binauralizer.blocked_lag.detach().float().cpu().clone()
         said += f"; behind a wall the first sound {1e3 * float(data['binauralizer']['blocked_lag']):.1f} ms after the straight line"
+    data["config"]["rir"]["blocked_ild"] = blocked_ild
+    data["binauralizer"].pop("blocked_ild", None)
+    if blocked_ild:  # behind a wall, B's early ILD scaled (after every fit above: the responses it scores are the final ones)
+        said += "; " + _with_blocked_ild(task, data, ckpt_path)
     law = " / ".join(f"{float(c):.2f}" for c in data["binauralizer"]["ild_law"])
     save_checkpoint(data, out_path)
     return f"the ILD law {law} dB" + said
 
 
+def _with_blocked_ild(task: ImpulseResponseTraining, data: dict, ckpt_path: str) -> str:
+    """``data`` (a checkpoint whose config says ``blocked_ild``) given the factor that ``task`` fits with its B."""
+    data["binauralizer"]["blocked_ild"] = torch.tensor(1.0)
+    renderer = SceneRenderer(data, path=ckpt_path)
+    task.fit_blocked_ild(renderer.model)
+    data["binauralizer"]["blocked_ild"] = renderer.model.binauralizer.blocked_ild.detach().float().cpu().clone()
+    return f"behind a wall B's early ILD times {float(data['binauralizer']['blocked_ild']):.1f}"
+
+
+def _fit_blocked_ild(scene_dir: str, data: dict, ckpt_path: str, out_path: str) -> str:
+    """``--blocked-ild-only``: the checkpoint with the early ILD's factor behind a wall and nothing else refitted."""
+    cfg = config_of(data)
+    if not (cfg.rir.direct_sound and cfg.rir.direct_ild):
+        raise SystemExit(f"{ckpt_path}: no direct sound's ILD (direct_sound and direct_ild must be on)")
+    task = ImpulseResponseTraining(scene_dir, cfg)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        task.configure(cfg, _Quiet())  # the training responses' early ILDs; its laws are not written
+    data["config"]["rir"]["blocked_ild"] = True
+    said = _with_blocked_ild(task, data, ckpt_path)
+    save_checkpoint(data, out_path)
+    return said
+
+
 if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a not in ("--no-level", "--no-reflections", "--no-arrival", "--no-lag", "--local")]
+    args = [a for a in sys.argv[1:] if a not in ("--no-level", "--no-reflections", "--no-arrival", "--no-lag", "--no-blocked-ild",
+                                                 "--blocked-ild-only", "--local")]
     if len(args) != 3:
         print(__doc__)
         sys.exit(2)
     said = refit(*args, level="--no-level" not in sys.argv, reflections="--no-reflections" not in sys.argv,
-                 local="--local" in sys.argv, arrival="--no-arrival" not in sys.argv, lag="--no-lag" not in sys.argv)
+                 local="--local" in sys.argv, arrival="--no-arrival" not in sys.argv, lag="--no-lag" not in sys.argv,
+                 blocked_ild="--no-blocked-ild" not in sys.argv, only_blocked_ild="--blocked-ild-only" in sys.argv)
     print(f"{args[2]}: {said}")

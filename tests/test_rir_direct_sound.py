@@ -629,3 +629,73 @@ def test_the_points_on_a_path_by_the_compiled_loop_are_the_matrix_products_count
         assert torch.equal(fast, reference) and int(fast.sum()) > 100
     short = points_on_path(points, a, a + 0.1, 0.2, 0.3)
     assert not bool(short.any())
+
+
+def _waves(model, listener, yaw, source, length):
+    """The model's responses [B, 2, L] (the checkpoint's phase, the direct sound placed) of a batch of poses."""
+    from avgs.acoustics.rir_model import response_waveform
+
+    rc = model.rir
+    with torch.no_grad():
+        mags = model.magnitudes(model.log_magnitudes(listener, yaw, source, model.precompute())[0])
+        return response_waveform(mags, length, model.stft, rc.phase, rc.phase_iterations,
+                                 direct=model.direct_sound(listener, yaw, source)).numpy()
+
+
+def test_behind_a_wall_the_early_ild_is_b_s_own_times_the_factor(renderer):
+    """With ``blocked_ild`` a pose behind the partition keeps B's response but its first 5 ms's ILD is B's own
+    times the factor (what the metric reads); a pose in sight is unchanged. The quick room has no pair behind a
+    wall: training keeps B's own (1)."""
+    from avgs.evaluation import spatial
+
+    assert renderer.config.rir.blocked_ild and float(renderer.model.binauralizer.blocked_ild) == 1.0
+    model = _partition_model(renderer)
+    with torch.no_grad():
+        model.binauralizer.mean[0] += math.log(2.0)  # B's left ear 6 dB louder: an ILD to scale
+    listener = torch.tensor([[2.0, 1.55, 1.55], [2.0, 3.05, 1.55]])  # behind the partition; in sight (see above)
+    source = torch.tensor([[5.5, 1.0, 1.55], [5.5, 3.55, 1.55]])
+    yaw = torch.zeros(2)
+    length, fs = renderer.config.rir.length, renderer.sample_rate
+    own = _waves(model, listener, yaw, source, length)
+    model.binauralizer.blocked_ild.fill_(0.3)
+    scaled = _waves(model, listener, yaw, source, length)
+    ild_own, ild_scaled = spatial.early_ild(own[0], fs), spatial.early_ild(scaled[0], fs)
+    assert ild_own > 2.5  # B's own, its left ear louder
+    assert ild_scaled == pytest.approx(0.3 * ild_own, abs=0.25)
+    assert np.array_equal(scaled[1], own[1])
+    with torch.no_grad():
+        arrival = float(model.direct_sound(listener, yaw, source).arrival[0]) * fs  # samples
+    changed = np.nonzero(np.abs(scaled[0] - own[0]).max(0) > 0)[0]
+    assert arrival - 30 <= changed.min() and changed.max() < arrival + 0.01 * fs  # the early stretch and its fade only
+
+
+def test_the_early_ild_factor_is_fitted_to_the_training_pairs_behind_a_wall(renderer):
+    """Training pairs on both sides of the partition whose early ILDs behind it are 0.3 of what B's own
+    responses have: the fit finds 0.3 (of 0, 0.1, .. 1); with their own ILDs it keeps 1."""
+    from types import SimpleNamespace
+
+    from avgs.evaluation import spatial
+    from avgs.train.impulse_responses import ImpulseResponseTraining
+
+    model = _partition_model(renderer)
+    with torch.no_grad():
+        model.binauralizer.mean[0] += math.log(2.0)  # B's left ear 6 dB louder: an ILD to scale
+    rng = np.random.default_rng(6)
+    n = 30
+    receiver = np.stack([rng.uniform(0.5, 2.5, n), rng.uniform(0.2, 3.8, n), np.full(n, 1.55)], -1)
+    source = np.tile([5.5, 1.0, 1.55], (n, 1))
+    yaw = rng.uniform(0, 360, n)
+    task = SimpleNamespace(train_set=SimpleNamespace(receiver=receiver, source=source, yaw=yaw), _log=None,
+                           _cfg=SimpleNamespace(rir=renderer.config.rir, stft=renderer.stft),
+                           responses=SimpleNamespace(length=renderer.config.rir.length))
+    task._counts_on_paths = lambda m, r, g: ImpulseResponseTraining._counts_on_paths(task, m, r, g)
+    task._behind_a_wall = lambda m: ImpulseResponseTraining._behind_a_wall(task, m)
+    blocked = task._counts_on_paths(model, 0.2, 0.3) >= 20
+    assert 10 <= int(blocked.sum()) <= n - 10  # both sides hold pairs
+    waves = _waves(model, torch.as_tensor(receiver, dtype=torch.float32), torch.as_tensor(np.radians(yaw), dtype=torch.float32),
+                   torch.as_tensor(source, dtype=torch.float32), renderer.config.rir.length)
+    own = np.array([spatial.early_ild(w, renderer.sample_rate) for w in waves])
+    for factor, expected in ((0.3, 0.3), (1.0, 1.0)):
+        task._ilds = np.where(blocked, factor * own, own + 5.0)  # in sight: not what the fit reads
+        ImpulseResponseTraining.fit_blocked_ild(task, model)
+        assert float(model.binauralizer.blocked_ild) == pytest.approx(expected, abs=0.051)

@@ -28,6 +28,7 @@ class DirectSound:
     delays: torch.Tensor  # [B, 2] seconds each ear hears it after that (the ITD: avgs.acoustics.interaural.ear_delays)
     ild: torch.Tensor | None = None  # [B] dB, left over right, of the first 5 ms (avgs.acoustics.interaural.ild_law); None / NaN: B's
     energy: torch.Tensor | None = None  # [B] both ears' energy of the impulse's stretch (interaural.direct_level_db); None / NaN: B's
+    ild_scale: torch.Tensor | None = None  # [B] where ild is NaN, B's own early ILD times this; None / NaN: B's as it is
 
 
 DIRECT_SECONDS = 0.005
@@ -96,8 +97,25 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
         out = _sharpen(out, start, fs, ild, energy)
         if energy is not None:  # the law's impulse comes out of B's first window (both ears), which holds it, not on top of it
             out = _keep_window(out, early, start, fs, n_win, np.isfinite(energy))
+        if direct.ild_scale is not None:  # behind a wall: B's own early ILD, scaled
+            ild = _scaled_own_ild(out, start, fs, ild, _np64(direct.ild_scale))
         out = _cohere(out, start, fs, ild)
     return torch.from_numpy(out).to(device=h.device, dtype=h.dtype)
+
+
+def _scaled_own_ild(y: np.ndarray, start: np.ndarray, fs: float, ild: np.ndarray | None, scale: np.ndarray) -> np.ndarray | None:
+    """``ild [B]`` (dB; None: all NaN) with, where it is NaN and ``scale [B]`` is a number, ``scale`` times the
+    early ILD ``y [B, 2, L]`` has: the two ears' energies over :data:`DIRECT_SECONDS` from the earlier
+    arrival of ``start [B, 2]`` (samples), the stretch :func:`cohere_early` shares out. Float64 NumPy."""
+    B, _, L = y.shape
+    out = np.full(B, np.nan) if ild is None else ild.copy()
+    n_early = int(round(DIRECT_SECONDS * fs))
+    for b in np.nonzero(np.isfinite(scale) & ~np.isfinite(out))[0]:
+        w0 = min(max(0, int(math.floor(float(start[b].min())))), L)
+        e = np.square(y[b, :, w0 : w0 + n_early]).sum(-1)  # [2]
+        if e[0] > 0.0 and e[1] > 0.0:
+            out[b] = float(scale[b]) * 10.0 * math.log10(float(e[0] / e[1]))
+    return None if ild is None and not np.isfinite(out).any() else out
 
 
 def _keep_window(y: np.ndarray, early: np.ndarray, start: np.ndarray, fs: float, n_win: int,

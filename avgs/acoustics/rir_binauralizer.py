@@ -106,7 +106,7 @@ REFLECTION_BUFFERS = ("reflecting_walls", "reflection_gain", "reflection_radius"
                       "reflected_arrival")
 "The walls' first reflections (the early ILD; behind a wall, the arrival), fitted at training (direct_ild, early_reflections)."
 
-ILD_BUFFERS = ("ild_law", "sight_radius", "sight_margin", "sight_blocked", "blocked_lag", "local_at", "local_residual",
+ILD_BUFFERS = ("ild_law", "sight_radius", "sight_margin", "sight_blocked", "blocked_lag", "blocked_ild", "local_at", "local_residual",
                "local_scale") + REFLECTION_BUFFERS
 "The direct sound's ILD, fitted at training (direct_ild, ild_local, early_reflections): a checkpoint without them has none."
 
@@ -185,6 +185,10 @@ class RIRBinauralizer(nn.Module):
             self.register_buffer("blocked_lag", torch.tensor(0.0))
         else:
             self.blocked_lag = None
+        if self.ild_law is not None and cfg.blocked_ild:  # behind a wall, B's early ILD times this (fitted at the end: avgs.train)
+            self.register_buffer("blocked_ild", torch.tensor(1.0))
+        else:
+            self.blocked_ild = None
         if cfg.direct_sound and cfg.direct_level:  # dB coefficients of the direct sound's level law (avgs.train)
             self.register_buffer("level_law", torch.zeros(3))
         else:

@@ -203,7 +203,10 @@ class RIRModel(AVGSModel):
         lag = getattr(b, "blocked_lag", None)  # behind a wall, the first sound this long after distance / c (fitted)
         if lag is not None and float(lag) > 0 and bool(blocked.any()):
             path = torch.where(blocked, distance + float(lag) * self.rir.sound_speed, path)
-        return DirectSound(path / self.rir.sound_speed, lagging_ear(self.head_itd(heard_from)), ild, energy)
+        shrink, ild_scale = getattr(b, "blocked_ild", None), None  # behind a wall, B's early ILD times this (fitted)
+        if shrink is not None and float(shrink) != 1.0 and bool(blocked.any()):
+            ild_scale = torch.where(blocked, torch.full_like(distance, float(shrink)), torch.full_like(distance, float("nan")))
+        return DirectSound(path / self.rir.sound_speed, lagging_ear(self.head_itd(heard_from)), ild, energy, ild_scale)
 
     def head_itd(self, theta: torch.Tensor) -> torch.Tensor:
         """The head's ITD ``[...]`` seconds (> 0: the right ear later) of directions ``theta [...]`` radians, float64:

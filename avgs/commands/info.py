@@ -75,6 +75,8 @@ def summary(path) -> dict:
                               else [bool(float(v) > 0.5) for v in ckpt["binauralizer"]["reflected_arrival"]]),
         "blocked_lag_ms": (None if ckpt["binauralizer"].get("blocked_lag") is None
                            else 1e3 * float(ckpt["binauralizer"]["blocked_lag"])),
+        "blocked_ild": (None if ckpt["binauralizer"].get("blocked_ild") is None
+                        else float(ckpt["binauralizer"]["blocked_ild"])),
         "blocked_from_points": (None if ckpt["binauralizer"].get("sight_blocked") is None
                                 else float(ckpt["binauralizer"]["sight_blocked"])),
         "wall_loss_db": (None if ckpt["binauralizer"].get("wall_loss") is None
@@ -176,6 +178,10 @@ def run(args: argparse.Namespace) -> int:
         elif info["blocked_lag_ms"] and not never_blocked(blocked):
             print(f"  behind a wall, the first sound {info['blocked_lag_ms']:.1f} ms after the straight line "
                   "(as the training responses behind a wall say)")
+        shrink = info["blocked_ild"]
+        if shrink is not None and shrink != 1.0 and not never_blocked(blocked):
+            print(f"  behind a wall, the first 5 ms's ILD {shrink:.1f} times the network's (as the training responses "
+                  "behind a wall say)")
     if info["level_law_db"] is not None:
         c0, c1, c2 = info["level_law_db"]
         print(f"  direct sound's level: {c0:.1f} {'-' if c1 < 0 else '+'} {abs(c1):.1f} cos theta {'-' if c2 < 0 else '+'} "

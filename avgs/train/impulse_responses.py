@@ -250,6 +250,9 @@ class RIRTrainer(Stage2Trainer):
         return out
 
 
+BLOCKED_ILD_STEPS = 11
+"The factors :meth:`ImpulseResponseTraining.fit_blocked_ild` tries: 0, 0.1, .. 1."
+
 SPEED_OF_SOUND = 343.0
 "m/s, when the scene does not say which speed its simulator used."
 
@@ -317,11 +320,13 @@ class ImpulseResponseTraining:
         self._itds: np.ndarray | None = None  # [M] their early ITDs, s (the metric's sign)
         self._onsets: np.ndarray | None = None  # [M] their onsets, s
         self._seed = int(cfg.seed)
+        self._cfg = cfg  # the run's configuration (configure() may change it)
         self._log: JsonLinesLog | None = None
 
     def configure(self, cfg: TrainConfig, log: JsonLinesLog) -> None:
         """A fresh run: the responses' length and frames, and the speed of sound, into ``cfg.rir``; stage 2's
         iterations sized to the training responses (:func:`schedule_iterations`)."""
+        self._cfg = cfg
         cfg.rir.length = int(self.responses.length)
         cfg.rir.frames = dsp.n_frames(cfg.rir.length, cfg.stft)
         cfg.rir.sound_speed = speed_of_sound(self.responses) * self.scene.frame.scale  # normalised units per second
@@ -516,6 +521,47 @@ class ImpulseResponseTraining:
         if self._log is not None:
             self._log.write(record)
 
+    @torch.no_grad()
+    def fit_blocked_ild(self, model: RIRModel) -> None:
+        """Behind a wall, B's early ILD times a factor (``RIRConfig.blocked_ild``): on the training pairs whose
+        straight path the points' test puts behind a wall, the factor of 0, 0.1, .. 1 whose responses (the
+        configured phase, the direct sound placed) have early ILDs nearest theirs by the median absolute error,
+        into ``model``'s ``blocked_ild`` where it beats 1 (B's own); else 1. Needs
+        :data:`~avgs.acoustics.early_reflections.ARRIVAL_PAIRS` pairs behind a wall. With B trained: at the end."""
+        from avgs.acoustics.early_reflections import ARRIVAL_PAIRS
+        from avgs.acoustics.rir_model import response_waveform
+        from avgs.evaluation import spatial
+
+        b = model.binauralizer
+        b.blocked_ild.fill_(1.0)
+        at, listener, source, yaw = self._behind_a_wall(model)
+        record = {"stage": "blocked_ild", "event": "fit", "pairs_behind": int(at.numel()), "factor": 1.0}
+        if at.numel() >= ARRIVAL_PAIRS and self._ilds is not None:
+            model.eval()
+            X = model.points.X
+            listener, yaw, source = listener.to(X), yaw.to(X), source.to(X)
+            cache = model.precompute()
+            logs = torch.cat([model.log_magnitudes(listener[c], yaw[c], source[c], cache)[0]
+                              for c in torch.arange(at.numel()).split(16)])
+            mags = model.magnitudes(logs)  # [A, 2, F, N]
+            truth = np.asarray(self._ilds, dtype=np.float64)[at.numpy()]
+            rc, stft = self._cfg.rir, self._cfg.stft
+            errors = []
+            for k in np.linspace(0.0, 1.0, BLOCKED_ILD_STEPS):
+                b.blocked_ild.fill_(float(k))
+                direct = model.direct_sound(listener, yaw, source)
+                wave = response_waveform(mags, self.responses.length, stft, rc.phase, rc.phase_iterations,
+                                         direct=direct).cpu().numpy()
+                predicted = np.array([spatial.early_ild(w, float(stft.sample_rate)) for w in wave])
+                errors.append((float(np.median(np.abs(predicted - truth))), float(k)))
+            best, factor = min(errors, key=lambda e: (e[0], -e[1]))  # ties: the larger factor (nearer B's own)
+            record.update({"early_ild_error_db": [errors[-1][0], best]})
+            if best < errors[-1][0]:
+                record["factor"] = factor
+            b.blocked_ild.fill_(record["factor"])
+        if self._log is not None:
+            self._log.write(record)
+
     def _behind_a_wall(self, model: RIRModel) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """The training pairs whose straight path the points' test puts behind a wall (the deployment's test):
         their indices ``[A]``, listeners and sources ``[A, 3]`` (float64, model units) and yaws ``[A]`` radians."""
@@ -604,7 +650,10 @@ class ImpulseResponseTraining:
         return trainer.evaluate(self.evals["val"]) if "val" in self.evals else {}
 
     def final(self, trainer: RIRTrainer, final: dict) -> dict:
-        """Log magnitudes and T60 / C50 / EDT on every held-back split."""
+        """Behind a wall, the early ILD's factor fitted (:meth:`fit_blocked_ild`, B trained); then log
+        magnitudes and T60 / C50 / EDT on every held-back split."""
+        if getattr(trainer.model.binauralizer, "blocked_ild", None) is not None:
+            self.fit_blocked_ild(trainer.model)
         final = final or {"iteration": trainer.iteration, "points": trainer.model.points.num_points}
         for name, data in self.evals.items():
             final.update(trainer.evaluate(data, name))
