@@ -4,6 +4,8 @@ u_room and l_room with this code), else from ../rir_defaults/reflections/runs (2
 ../rir_defaults/baselines.json. Prints a markdown table per split, and which presets came from where.
 
     python benchmarks/cpu/rir_fixed/overall.py
+
+"avgs-ild" and "no-context-ild": the same checkpoints with the early ILD's factor behind a wall (blocked_ild.sh).
 """
 
 import json
@@ -41,13 +43,17 @@ def main() -> None:
                 scenes[scene.removesuffix("_fixed")] = m
             o = overall(scenes)
             print(f"| {method} | " + " | ".join(f.format(o[k]) for k, f in KEYS) + " |")
-        for setting, when in (("avgs", "before"), ("avgs", "after"), ("no-context", "before"), ("no-context", "after")):
+        for setting, when in (("avgs", "before"), ("avgs", "after"), ("avgs-ild", "after"), ("no-context", "before"),
+                              ("no-context", "after"), ("no-context-ild", "after")):
             seeds = []
             for k in range(3):
                 scenes = {}
-                for folder in (OLD / "reflections" / "runs", HERE / "runs"):  # the runs here last: they replace
-                    scenes.update({p.name.split(f"-{setting}-seed")[0]: run_scores(p, split, when)
-                                   for p in folder.glob(f"*-{setting}-seed{k}.spatial.json")})
+                # the runs here last: they replace; a "-ild" setting (blocked_ild.sh) over its plain one's, where a
+                # preset has no pair behind a wall (rect_small, rect_large) the factor has nothing to change
+                for folder, name in ((OLD / "reflections" / "runs", setting.removesuffix("-ild")),
+                                     (HERE / "runs", setting.removesuffix("-ild")), (HERE / "runs", setting)):
+                    scenes.update({p.name.split(f"-{name}-seed")[0]: run_scores(p, split, when)
+                                   for p in folder.glob(f"*-{name}-seed{k}.spatial.json")})
                 seeds.append(overall(scenes))
             label = setting + (", direct sound left to B" if when == "before" else "")
             print(f"| {label} (3 seeds) | " + " | ".join(
