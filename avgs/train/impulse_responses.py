@@ -250,9 +250,6 @@ class RIRTrainer(Stage2Trainer):
         return out
 
 
-BLOCKED_ILD_STEPS = 11
-"The factors :meth:`ImpulseResponseTraining.fit_blocked_ild` tries: 0, 0.1, .. 1."
-
 SPEED_OF_SOUND = 343.0
 "m/s, when the scene does not say which speed its simulator used."
 
@@ -521,44 +518,21 @@ class ImpulseResponseTraining:
         if self._log is not None:
             self._log.write(record)
 
-    @torch.no_grad()
     def fit_blocked_ild(self, model: RIRModel) -> None:
-        """Behind a wall, B's early ILD times a factor (``RIRConfig.blocked_ild``): on the training pairs whose
-        straight path the points' test puts behind a wall, the factor of 0, 0.1, .. 1 whose responses (the
-        configured phase, the direct sound placed) have early ILDs nearest theirs by the median absolute error,
-        into ``model``'s ``blocked_ild`` where it beats 1 (B's own); else 1. Needs
-        :data:`~avgs.acoustics.early_reflections.ARRIVAL_PAIRS` pairs behind a wall. With B trained: at the end."""
+        """Behind a wall, B's early ILD times a factor (``RIRConfig.blocked_ild``,
+        :func:`avgs.train.blocked_ild.fit_factor`) fitted on the training pairs whose straight path the points'
+        test puts behind a wall; 1 (B's own) with fewer than
+        :data:`~avgs.acoustics.early_reflections.ARRIVAL_PAIRS` of them. With B trained: at the end."""
         from avgs.acoustics.early_reflections import ARRIVAL_PAIRS
-        from avgs.acoustics.rir_model import response_waveform
-        from avgs.evaluation import spatial
+        from avgs.train.blocked_ild import fit_factor
 
-        b = model.binauralizer
-        b.blocked_ild.fill_(1.0)
+        with torch.no_grad():
+            model.binauralizer.blocked_ild.fill_(1.0)
         at, listener, source, yaw = self._behind_a_wall(model)
         record = {"stage": "blocked_ild", "event": "fit", "pairs_behind": int(at.numel()), "factor": 1.0}
         if at.numel() >= ARRIVAL_PAIRS and self._ilds is not None:
-            model.eval()
-            X = model.points.X
-            listener, yaw, source = listener.to(X), yaw.to(X), source.to(X)
-            cache = model.precompute()
-            logs = torch.cat([model.log_magnitudes(listener[c], yaw[c], source[c], cache)[0]
-                              for c in torch.arange(at.numel()).split(16)])
-            mags = model.magnitudes(logs)  # [A, 2, F, N]
             truth = np.asarray(self._ilds, dtype=np.float64)[at.numpy()]
-            rc, stft = self._cfg.rir, self._cfg.stft
-            errors = []
-            for k in np.linspace(0.0, 1.0, BLOCKED_ILD_STEPS):
-                b.blocked_ild.fill_(float(k))
-                direct = model.direct_sound(listener, yaw, source)
-                wave = response_waveform(mags, self.responses.length, stft, rc.phase, rc.phase_iterations,
-                                         direct=direct).cpu().numpy()
-                predicted = np.array([spatial.early_ild(w, float(stft.sample_rate)) for w in wave])
-                errors.append((float(np.median(np.abs(predicted - truth))), float(k)))
-            best, factor = min(errors, key=lambda e: (e[0], -e[1]))  # ties: the larger factor (nearer B's own)
-            record.update({"early_ild_error_db": [errors[-1][0], best]})
-            if best < errors[-1][0]:
-                record["factor"] = factor
-            b.blocked_ild.fill_(record["factor"])
+            record.update(fit_factor(model, listener, yaw, source, truth, self._cfg.rir, self._cfg.stft, self.responses.length))
         if self._log is not None:
             self._log.write(record)
 
