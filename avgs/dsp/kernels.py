@@ -176,7 +176,6 @@ def overlap_add(frames: torch.Tensor, window: torch.Tensor, head: torch.Tensor, 
     return out
 
 
-
 def reflect_ends(z: torch.Tensor, pad: int, length: int) -> torch.Tensor:
     """On the CPU, ``z`` [..., P] (contiguous) with its ``pad`` first samples and those after
     ``pad + length`` rewritten in place as the centred STFT pads the waveform between them:
