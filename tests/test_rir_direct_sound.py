@@ -669,13 +669,18 @@ def test_behind_a_wall_the_early_ild_is_b_s_own_times_the_factor(renderer):
     assert arrival - 30 <= changed.min() and changed.max() < arrival + 0.01 * fs  # the early stretch and its fade only
 
 
-def test_the_early_ild_factor_is_fitted_to_the_training_pairs_behind_a_wall(renderer):
+@pytest.mark.parametrize("most", [256, 9])
+def test_the_early_ild_factor_is_fitted_to_the_training_pairs_behind_a_wall(renderer, most, monkeypatch):
     """Training pairs on both sides of the partition whose early ILDs behind it are 0.3 of what B's own
-    responses have: the fit finds 0.3 (of 0, 0.1, .. 1); with their own ILDs it keeps 1."""
+    responses have: the fit finds 0.3 (of 0, 0.1, .. 1); with their own ILDs it keeps 1. Scoring only some
+    of the pairs behind the wall (``MOST_PAIRS``, evenly spaced) finds the same."""
     from types import SimpleNamespace
 
     from avgs.evaluation import spatial
+    from avgs.train import blocked_ild
     from avgs.train.impulse_responses import ImpulseResponseTraining
+
+    monkeypatch.setattr(blocked_ild, "MOST_PAIRS", most)
 
     model = _partition_model(renderer)
     with torch.no_grad():

@@ -17,6 +17,9 @@ from avgs.config import RIRConfig, STFTConfig
 STEPS = 11
 "The factors :func:`fit_factor` tries: 0, 0.1, .. 1."
 
+MOST_PAIRS = 256
+"At most this many pairs behind a wall scored (evenly spaced): the median is steady, time and memory bounded."
+
 
 @torch.no_grad()
 def fit_factor(model, listener: torch.Tensor, yaw: torch.Tensor, source: torch.Tensor, truth: np.ndarray,
@@ -24,10 +27,14 @@ def fit_factor(model, listener: torch.Tensor, yaw: torch.Tensor, source: torch.T
     """Set ``model``'s ``blocked_ild`` (an :class:`~avgs.acoustics.rir_model.RIRModel` with it) to the factor
     whose responses (``rir``'s phase, the direct sound placed, ``length`` samples) of the pairs behind a wall
     (listener, source ``[A, 3]`` model units, yaw ``[A]`` radians) have early ILDs nearest ``truth [A]`` dB
-    by the median absolute error, where it beats 1; else 1. Returns the log's record fields."""
+    by the median absolute error, where it beats 1; else 1 (at most :data:`MOST_PAIRS` of them, evenly spaced).
+    Returns the log's record fields."""
     from avgs.acoustics.rir_model import response_waveform
     from avgs.evaluation import spatial
 
+    if listener.shape[0] > MOST_PAIRS:
+        keep = torch.linspace(0, listener.shape[0] - 1, MOST_PAIRS).round().long()
+        listener, yaw, source, truth = listener[keep], yaw[keep], source[keep], np.asarray(truth)[keep.numpy()]
     b, X = model.binauralizer, model.points.X
     model.eval()
     listener, yaw, source = listener.to(X), yaw.to(X), source.to(X)
