@@ -44,6 +44,21 @@ def quick_rir_scene(tmp_path_factory) -> Path:
     return built_once(tmp_path_factory, "rir_quick", build) / "quick_rect"
 
 
+@pytest.fixture(scope="session")
+def quick_rir_renderer(quick_rir_scene, tmp_path_factory):
+    """A ``SceneRenderer`` of the quick impulse-response scene after 40 iterations of the quick config
+    (tests/test_rir_direct_sound.py, tests/test_rir_behind_walls.py); read only."""
+    from avgs.render.renderer import SceneRenderer
+    from avgs.train.impulse_responses import rir_quick_config
+    from avgs.train.pipeline import train_scene
+
+    cfg = rir_quick_config()
+    cfg.acoustic.iterations = 40
+    out = tmp_path_factory.mktemp("direct") / "scene.ckpt"
+    train_scene(quick_rir_scene, out, cfg, task="rir", progress=False)
+    return SceneRenderer.load(out)
+
+
 def train_free_field(root: Path, n_train: int, n_val: int, seed: int, iterations: int, prune_every: int,
                      eval_every: int, log_every: int):
     """A free-field scene of ``rwavs_writer`` in ``root`` (the ear facing the source is louder) and a
