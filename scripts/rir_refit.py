@@ -44,14 +44,9 @@ def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, ref
     cfg = config_of(data)
     if only_blocked_ild:
         return _fit_blocked_ild(scene_dir, data, ckpt_path, out_path)
-    if not (cfg.rir.direct_sound and cfg.rir.direct_ild):
-        raise SystemExit(f"{ckpt_path}: no ILD law to refit (direct_sound and direct_ild must be on)")
     cfg.rir.ild_local = local
     cfg.rir.direct_level = level
-    task = ImpulseResponseTraining(scene_dir, cfg)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        task.configure(cfg, _Quiet())
+    task = _configured(scene_dir, cfg, ckpt_path)
     if task.ild_law is None:
         raise SystemExit(f"{scene_dir}: too few training responses in sight of the source for the ILD law")
     data["binauralizer"]["ild_law"] = torch.tensor(task.ild_law, dtype=torch.float32)
@@ -106,6 +101,18 @@ def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, ref
     return f"the ILD law {law} dB" + said
 
 
+def _configured(scene_dir: str, cfg, ckpt_path: str) -> ImpulseResponseTraining:
+    """The training task of ``scene_dir`` configured with ``cfg`` (a checkpoint's, with a direct sound's ILD) as
+    training's start does: the fits from the training responses, kept in the task (nothing written)."""
+    if not (cfg.rir.direct_sound and cfg.rir.direct_ild):
+        raise SystemExit(f"{ckpt_path}: no ILD law to refit (direct_sound and direct_ild must be on)")
+    task = ImpulseResponseTraining(scene_dir, cfg)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        task.configure(cfg, _Quiet())
+    return task
+
+
 def _with_blocked_ild(task: ImpulseResponseTraining, data: dict, ckpt_path: str) -> str:
     """``data`` (a checkpoint whose config says ``blocked_ild``) given the factor that ``task`` fits with its B."""
     data["binauralizer"]["blocked_ild"] = torch.tensor(1.0)
@@ -117,13 +124,7 @@ def _with_blocked_ild(task: ImpulseResponseTraining, data: dict, ckpt_path: str)
 
 def _fit_blocked_ild(scene_dir: str, data: dict, ckpt_path: str, out_path: str) -> str:
     """``--blocked-ild-only``: the checkpoint with the early ILD's factor behind a wall and nothing else refitted."""
-    cfg = config_of(data)
-    if not (cfg.rir.direct_sound and cfg.rir.direct_ild):
-        raise SystemExit(f"{ckpt_path}: no direct sound's ILD (direct_sound and direct_ild must be on)")
-    task = ImpulseResponseTraining(scene_dir, cfg)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        task.configure(cfg, _Quiet())  # the training responses' early ILDs; its laws are not written
+    task = _configured(scene_dir, config_of(data), ckpt_path)  # the training responses' early ILDs
     data["config"]["rir"]["blocked_ild"] = True
     said = _with_blocked_ild(task, data, ckpt_path)
     save_checkpoint(data, out_path)
