@@ -97,25 +97,8 @@ def place_direct_sound(h: torch.Tensor, direct: DirectSound, stft: STFTConfig = 
         out = _sharpen(out, start, fs, ild, energy)
         if energy is not None:  # the law's impulse comes out of B's first window (both ears), which holds it, not on top of it
             out = _keep_window(out, early, start, fs, n_win, np.isfinite(energy))
-        if direct.ild_scale is not None:  # behind a wall: B's own early ILD, scaled
-            ild = _scaled_own_ild(out, start, fs, ild, _np64(direct.ild_scale))
-        out = _cohere(out, start, fs, ild)
+        out = _cohere(out, start, fs, ild, None if direct.ild_scale is None else _np64(direct.ild_scale))
     return torch.from_numpy(out).to(device=h.device, dtype=h.dtype)
-
-
-def _scaled_own_ild(y: np.ndarray, start: np.ndarray, fs: float, ild: np.ndarray | None, scale: np.ndarray) -> np.ndarray | None:
-    """``ild [B]`` (dB; None: all NaN) with, where it is NaN and ``scale [B]`` is a number, ``scale`` times the
-    early ILD ``y [B, 2, L]`` has: the two ears' energies over :data:`DIRECT_SECONDS` from the earlier
-    arrival of ``start [B, 2]`` (samples), the stretch :func:`cohere_early` shares out. Float64 NumPy."""
-    B, _, L = y.shape
-    out = np.full(B, np.nan) if ild is None else ild.copy()
-    n_early = int(round(DIRECT_SECONDS * fs))
-    for b in np.nonzero(np.isfinite(scale) & ~np.isfinite(out))[0]:
-        w0 = min(max(0, int(math.floor(float(start[b].min())))), L)
-        e = np.square(y[b, :, w0 : w0 + n_early]).sum(-1)  # [2]
-        if e[0] > 0.0 and e[1] > 0.0:
-            out[b] = float(scale[b]) * 10.0 * math.log10(float(e[0] / e[1]))
-    return None if ild is None and not np.isfinite(out).any() else out
 
 
 def _keep_window(y: np.ndarray, early: np.ndarray, start: np.ndarray, fs: float, n_win: int,
@@ -286,9 +269,12 @@ def cohere_early(y: torch.Tensor, start: torch.Tensor, fs: float, ild: torch.Ten
     return torch.from_numpy(out).to(y.device)
 
 
-def _cohere(y: np.ndarray, start: np.ndarray, fs: float, ild: np.ndarray | None = None) -> np.ndarray:
+def _cohere(y: np.ndarray, start: np.ndarray, fs: float, ild: np.ndarray | None = None,
+            scale: np.ndarray | None = None) -> np.ndarray:
     """:func:`cohere_early` in NumPy (``y``'s dtype), in place in ``y`` (returned): each pose reads its lagging
-    ear's samples before it writes them, and its leading ear's energy before it scales them."""
+    ear's samples before it writes them, and its leading ear's energy before it scales them. ``scale [B]``
+    (:attr:`DirectSound.ild_scale`): where ``ild`` is NaN (or None) and it is a number, the ILD asked for is
+    the stretch's own times it."""
     B, _, L = y.shape
     n_early = int(round(DIRECT_SECONDS * fs))
     out = y
@@ -309,8 +295,13 @@ def _cohere(y: np.ndarray, start: np.ndarray, fs: float, ild: np.ndarray | None 
         w1 = min(a0 + core, w0 + n_early)
         energy = float(np.square(y[b, lag, w0:w1]).sum())
         level = None if ild is None else float(ild[b])
-        if level is not None and math.isfinite(level):  # share the stretch's energy for the ILD, its sum kept
+        given = level is not None and math.isfinite(level)
+        if given or (scale is not None and math.isfinite(float(scale[b]))):
             lead_energy = float(np.square(y[b, lead, w0:w1]).sum())
+            if not given:  # the stretch's own ILD (left over right) times the scale; none where an ear is silent
+                own = 10.0 * math.log10(lead_energy / energy) if lead_energy > 0.0 and energy > 0.0 else None
+                level = None if own is None else float(scale[b]) * (own if lead == 0 else -own)
+        if level is not None and math.isfinite(level):  # share the stretch's energy for the ILD, its sum kept
             ratio = 10.0 ** ((level if lead == 0 else -level) / 10.0)  # leading over lagging ear
             total = lead_energy + energy
             if lead_energy > 0.0 and total > 0.0:
