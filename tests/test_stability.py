@@ -361,6 +361,40 @@ def test_any_finite_input_level_renders_the_same_sound_scaled(renderer, level):
     assert np.allclose(out / np.float32(level), ref, rtol=1e-4, atol=1e-6 * np.max(np.abs(ref)))
 
 
+def _streamed(stream, x, size=700):
+    return np.concatenate([stream.process(x[i : i + size]) for i in range(0, len(x), size)] + [stream.flush()], axis=1)
+
+
+@pytest.mark.parametrize("synthesis", [None, SynthesisConfig(phase="filter", phase_iterations=0),
+                                       SynthesisConfig(method="filter")], ids=["mid", "filter-phase", "filter"])
+@pytest.mark.parametrize("level", [1e-25, 1e20, 1e30])
+def test_any_finite_input_level_streams_the_same_sound_scaled(renderer, synthesis, level):
+    """A stream takes its first sounding block's scale: 1e20 does not overflow the mid phase's float32
+    powers to NaN (it did from 1e18), 1e-25 does not underflow."""
+    r = renderer if synthesis is None else SceneRenderer(room_checkpoint(), synthesis=synthesis)
+    x = noise(5000, seed=3)
+    x[:1000] = 0.0  # silence first: the scale comes from the first block that sounds
+    ref = _streamed(r.stream((2.0, 2.0, 1.6), 15.0), x)
+    out = _streamed(r.stream((2.0, 2.0, 1.6), 15.0), x * np.float32(level))
+    assert np.all(np.isfinite(out)) and np.max(np.abs(out)) > 0
+    assert np.allclose(out / np.float32(level), ref, rtol=1e-4, atol=1e-6 * np.max(np.abs(ref)))
+    whole = r.render((2.0, 2.0, 1.6), 15.0, x * np.float32(level)).binaural
+    assert np.allclose(out, whole, rtol=1e-3, atol=1e-4 * np.max(np.abs(whole)))
+
+
+def test_a_block_beyond_the_streams_range_is_refused_and_the_stream_goes_on(renderer):
+    stream = renderer.stream((2.0, 2.0, 1.6), 15.0)
+    x = noise(4000, seed=5)
+    first = stream.process(x[:2000] * np.float32(1e-3))  # the scale: 2^-9
+    with pytest.raises(ValueError, match=r"more than 2\^40 times the stream's scale"):
+        stream.process(x[2000:3000] * np.float32(1e12))
+    rest = [stream.process(x[2000:] * np.float32(1e-3)), stream.flush()]
+    y = np.concatenate([first, *rest], axis=1)
+    assert np.all(np.isfinite(y))
+    ref = _streamed(renderer.stream((2.0, 2.0, 1.6), 15.0), x * np.float32(1e-3))
+    assert np.allclose(y, ref, rtol=1e-4, atol=1e-6 * np.max(np.abs(ref)))
+
+
 def loud_renderer(gain: float) -> SceneRenderer:
     """A scene whose mixture mask is ``gain`` in every bin (the head's bias), no tail."""
     cfg = TrainConfig()

@@ -52,6 +52,7 @@ from avgs.data.frame import SceneFrame, signed_direction
 from avgs.gaussians.sh import sh_to_rgb
 from avgs.io.checkpoint import config_of, load_checkpoint, stft_of
 from avgs.render.tasks import HEADROOM_DB, BlockStream, HeadroomLimited, Pose, Response, TaskModel, peak, unit_input  # noqa: F401
+from avgs.render.unit_scale_stream import UnitScaleStream
 from avgs.tasks import Task, task_of
 
 
@@ -431,11 +432,15 @@ class SceneRenderer:
         delay), with the filter's phase and no iterations a :class:`avgs.render.streaming.BinauralStream`
         (29 ms), with ``method="filter"`` a :class:`avgs.acoustics.convolution.ConvolutionStream`
         (one block), as the impulse-response task always. Iterations from the source's or the
-        filter's phase need the whole signal: such renderers do not stream.
+        filter's phase need the whole signal: such renderers do not stream. Each block is processed
+        at a power-of-two scale fixed by the first block that is not silent, as :meth:`render`
+        processes its input at unit peak (:class:`avgs.render.unit_scale_stream.UnitScaleStream`):
+        an input peaking at 1e30 or 1e-25 streams as a unit one does; a block 2^40 louder than that
+        first one is refused with ValueError.
         """
         with self._lock, torch.inference_mode():
             _, r = self._response(listener, yaw, source)
-            return self.task_model.stream(r, self.synthesis, block_frames)
+            return UnitScaleStream(self.task_model.stream(r, self.synthesis, block_frames))
 
     def move_stream(self, stream: BlockStream, listener, yaw: float, source=None) -> RenderResult:
         """Switch a :meth:`stream` of this scene to another pose from its next block (crossfaded,
