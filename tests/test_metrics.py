@@ -70,6 +70,12 @@ def test_mag_and_env_reject_mismatched_shapes():
         metrics.env(np.zeros((3, 100)), np.zeros((3, 100)))
 
 
+@pytest.mark.parametrize("metric", [metrics.mag, metrics.env, metrics.ild_error, lambda p, g: metrics.ild(p)])
+def test_empty_waveforms_are_refused_by_name(metric):
+    with pytest.raises(ValueError, match=r"T >= 1, got \(2, 0\)"):
+        metric(np.zeros((2, 0)), np.zeros((2, 0)))
+
+
 def on_bin(k, amplitude=1.0):
     n = np.arange(T_BIN)
     return amplitude * np.cos(2 * np.pi * k * n / N_FFT)

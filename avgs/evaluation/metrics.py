@@ -69,11 +69,15 @@ def _numpy(x) -> np.ndarray:
     return np.ascontiguousarray(x, dtype=np.float64)  # torch.from_numpy needs positive strides
 
 
+def _check_binaural(x: np.ndarray, name: str) -> None:
+    if x.ndim < 2 or x.shape[-2] != 2 or x.shape[-1] == 0:
+        raise ValueError(f"{name}: expected binaural waveforms [..., 2, T] with T >= 1, got {x.shape}")
+
+
 def _check_pair(pred: np.ndarray, gt: np.ndarray, name: str) -> None:
     if pred.shape != gt.shape:
         raise ValueError(f"{name}: prediction {pred.shape} and ground truth {gt.shape} must have the same shape")
-    if pred.ndim < 2 or pred.shape[-2] != 2:
-        raise ValueError(f"{name}: expected binaural waveforms [..., 2, T], got {pred.shape}")
+    _check_binaural(pred, name)
 
 
 def mag(pred, gt, stft: STFTConfig = STFT) -> float:
@@ -97,8 +101,7 @@ def mag_spectrogram(pred_mag, gt, stft: STFTConfig = STFT) -> float:
     frames and bins must match ``pred_mag``'s.
     """
     p, g = _numpy(pred_mag), _numpy(gt)
-    if g.ndim < 2 or g.shape[-2] != 2:
-        raise ValueError(f"MAG: expected a binaural ground truth [..., 2, T], got {g.shape}")
+    _check_binaural(g, "MAG")
     g_mag = dsp.magnitude(torch.from_numpy(g), stft).numpy()  # [..., 2, F, N]
     if p.shape != g_mag.shape:
         raise ValueError(f"MAG: predicted magnitudes {p.shape} do not match the ground truth's STFT {g_mag.shape}")
@@ -135,8 +138,7 @@ def ild(x, stft: STFTConfig = STFT) -> np.ndarray:
     +-:data:`ILD_LIMIT_DB`; 0 dB when both ears are silent.
     """
     x = _numpy(x)
-    if x.ndim < 2 or x.shape[-2] != 2:
-        raise ValueError(f"ILD: expected binaural waveforms [..., 2, T], got {x.shape}")
+    _check_binaural(x, "ILD")
     m = dsp.magnitude(torch.from_numpy(x), stft).numpy()  # [..., 2, F, N]
     first = int(math.ceil(ILD_MIN_HZ * stft.n_fft / stft.sample_rate))
     e = np.sum(m[..., first:, :] ** 2, axis=(-2, -1))  # [..., 2]
