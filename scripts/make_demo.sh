@@ -40,7 +40,9 @@ mkdir -p "$WORK"
 #    written from the checkpoint's Gaussians (avgs.train.stage1.save_stage1) and `--stage1 FILE` here.
 #    The walls' reflections and, behind a wall, the first sound's lag after the straight line
 #    (RIRConfig.blocked_lag: 3.4 ms) were added the same way (scripts/rir_refit.py, 2026-11-28 and 2026-11-29), and
-#    behind a wall the early ILD's factor (RIRConfig.blocked_ild: 0.0; `rir_refit.py --blocked-ild-only`, 2026-11-29).
+#    behind a wall the early ILD's factor (RIRConfig.blocked_ild; `rir_refit.py --blocked-ild-only`, 2026-11-29). Then all
+#    of these were fitted again on the demo's final points, as training now does at its end (`rir_refit.py
+#    --geometry-only`, 2026-11-29: behind a wall from 4 points on the path, the lag 2.7 ms, the factor 0.1).
 OMP_NUM_THREADS=1 $AVGS --threads 1 train "$SCENE" --task rir --init gs --out "$WORK/scene.ckpt" --audio-points 8000 \
   --iterations 500 --batch-size 8 --lr 1e-3 --rir-width 256 --eval-every 250
 

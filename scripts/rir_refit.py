@@ -10,7 +10,9 @@ without the first reflection's arrival behind a wall (``RIRConfig.reflected_arri
 first sound's lag behind a wall (``RIRConfig.blocked_lag``); ``--no-blocked-ild``: without the early ILD's
 factor behind a wall (``RIRConfig.blocked_ild``, fitted with the checkpoint's own B); ``--local``: with
 the local correction (off by default since the walls' reflections: ``RIRConfig.ild_local``). ``--blocked-ild-only``:
-the checkpoint as it is but for that factor (what it adds, measured alone).
+the checkpoint as it is but for that factor (what it adds, measured alone). ``--geometry-only``: the straight path's
+test, the walls' reflections, the lag and that factor fitted again on the checkpoint's own points, as training now
+does at its end (:meth:`~avgs.train.impulse_responses.ImpulseResponseTraining.refit_geometry`), nothing else changed.
 
     python scripts/rir_refit.py data/rir/two_rooms runs/two_rooms.ckpt runs/two_rooms.refit.ckpt
 """
@@ -35,7 +37,7 @@ class _Quiet:
 
 def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, reflections: bool = True,
           local: bool = False, arrival: bool = True, lag: bool = True, blocked_ild: bool = True,
-          only_blocked_ild: bool = False) -> str:
+          only_blocked_ild: bool = False, only_geometry: bool = False) -> str:
     """Write ``out_path``: ``ckpt_path`` with the level law (``level``), the walls' reflections
     (``reflections``; with ``arrival`` also behind a wall) and the early ILD's local correction (``local``)
     fitted on ``scene_dir``, and behind a wall the first sound's lag (``lag``, ``RIRConfig.blocked_lag``), each left
@@ -44,6 +46,8 @@ def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, ref
     cfg = config_of(data)
     if only_blocked_ild:
         return _fit_blocked_ild(scene_dir, data, ckpt_path, out_path)
+    if only_geometry:
+        return _refit_geometry(scene_dir, data, ckpt_path, out_path)
     cfg.rir.ild_local = local
     cfg.rir.direct_level = level
     task = _configured(scene_dir, cfg, ckpt_path)
@@ -131,13 +135,34 @@ def _fit_blocked_ild(scene_dir: str, data: dict, ckpt_path: str, out_path: str) 
     return said
 
 
+def _refit_geometry(scene_dir: str, data: dict, ckpt_path: str, out_path: str) -> str:
+    """``--geometry-only``: the checkpoint with its straight path's tests fitted again on its own points (and the
+    early ILD's factor behind a wall after them, where its config has one), as training's end now fits them."""
+    task = _configured(scene_dir, config_of(data), ckpt_path)
+    renderer = SceneRenderer(data, path=ckpt_path)
+    model, b = renderer.model, renderer.model.binauralizer
+    task._log = None
+    task.refit_geometry(model)
+    if getattr(b, "blocked_ild", None) is not None:
+        task.fit_blocked_ild(model)
+    state = b.state_dict()
+    for key in data["binauralizer"]:
+        if key in state and key not in dict(b.named_parameters()):
+            data["binauralizer"][key] = state[key].detach().cpu().clone()
+    save_checkpoint(data, out_path)
+    lag = "" if b.blocked_lag is None else f", lag {1e3 * float(b.blocked_lag):.1f} ms"
+    shrink = "" if getattr(b, "blocked_ild", None) is None else f", B's early ILD behind a wall times {float(b.blocked_ild):.1f}"
+    return f"behind a wall from {float(b.sight_blocked):g} points on the path{lag}{shrink}"
+
+
 if __name__ == "__main__":
     args = [a for a in sys.argv[1:] if a not in ("--no-level", "--no-reflections", "--no-arrival", "--no-lag", "--no-blocked-ild",
-                                                 "--blocked-ild-only", "--local")]
+                                                 "--blocked-ild-only", "--geometry-only", "--local")]
     if len(args) != 3:
         print(__doc__)
         sys.exit(2)
     said = refit(*args, level="--no-level" not in sys.argv, reflections="--no-reflections" not in sys.argv,
                  local="--local" in sys.argv, arrival="--no-arrival" not in sys.argv, lag="--no-lag" not in sys.argv,
-                 blocked_ild="--no-blocked-ild" not in sys.argv, only_blocked_ild="--blocked-ild-only" in sys.argv)
+                 blocked_ild="--no-blocked-ild" not in sys.argv, only_blocked_ild="--blocked-ild-only" in sys.argv,
+                 only_geometry="--geometry-only" in sys.argv)
     print(f"{args[2]}: {said}")

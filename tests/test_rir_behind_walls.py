@@ -258,3 +258,55 @@ def test_the_early_ild_factor_is_fitted_to_the_training_pairs_behind_a_wall(rend
         task._ilds = np.where(blocked, factor * own, own + 5.0)  # in sight: not what the fit reads
         ImpulseResponseTraining.fit_blocked_ild(task, model)
         assert float(model.binauralizer.blocked_ild) == pytest.approx(expected, abs=0.051)
+
+
+def test_the_straight_paths_tests_are_fitted_again_on_the_points_stage_2_left(renderer):
+    """Training's start fits the straight path's test (and the lag) on G_a as stage 1 left it; stage 2 adds points
+    (the partition at twice the density, and a cluster in the open where some paths in sight pass), so the start's
+    threshold puts paths in sight behind a wall. ``refit_geometry`` (training's end) fits both again on the final
+    points: every pair is told as its onset says again, and the lag is refitted; on unchanged points it gives what
+    the start gave."""
+    from types import SimpleNamespace
+
+    from avgs.train.impulse_responses import ImpulseResponseTraining
+
+    model = _partition_model(renderer)
+    model.binauralizer.reflecting_walls = None  # the walls' fit has its own tests (test_early_reflections.py)
+    model.binauralizer.reflected_arrival = None
+    rng = np.random.default_rng(7)
+    receiver = np.stack([rng.uniform(0.5, 2.5, 400), rng.uniform(0.2, 3.8, 400), np.full(400, 1.55)], -1)
+    crossing = receiver[:, 1] + (1.0 - receiver[:, 1]) * (3.06 - receiver[:, 0]) / (5.5 - receiver[:, 0])  # y at the partition
+    receiver = np.concatenate([receiver[crossing < 1.5][:30], receiver[crossing > 2.5][:30]])  # clear of its end
+    n = len(receiver)
+    source = np.tile([5.5, 1.0, 1.55], (n, 1))
+    records = []
+    task = SimpleNamespace(train_set=SimpleNamespace(receiver=receiver, source=source, yaw=rng.uniform(0, 360, n)),
+                           scene=SimpleNamespace(frame=SimpleNamespace(scale=1.0)), _before_walls=([0.0], None),
+                           _log=SimpleNamespace(write=records.append))
+    for name in ("_counts_on_paths", "_behind_a_wall", "_fit_sight", "fit_lag", "refit_geometry"):
+        setattr(task, name, getattr(ImpulseResponseTraining, name).__get__(task))
+    task._in_sight = task._counts_on_paths(model, 0.2, 0.3) == 0  # the onsets' truth: across the partition is behind it
+    assert int((~task._in_sight).sum()) == 30
+    c = model.rir.sound_speed
+    task._onsets = np.linalg.norm(source - receiver, axis=-1) / c + np.where(task._in_sight, 0.0, 0.003)
+    task._fit_sight(model)
+    task.fit_lag(model)
+    start = float(model.binauralizer.sight_blocked)
+    assert float(model.binauralizer.blocked_lag) == pytest.approx(0.003)
+
+    task.refit_geometry(model)  # nothing moved: the same test and lag
+    assert records[-1]["stage"] == "geometry" and float(model.binauralizer.sight_blocked) == start
+    assert float(model.binauralizer.blocked_lag) == pytest.approx(0.003)
+
+    u = np.arange(0.0, 6.05, 0.05)
+    yy, zz = np.meshgrid(u[u <= 2.0], u[u <= 2.5])
+    denser = [np.stack([np.full(yy.size, x), yy.ravel(), zz.ravel()], -1) for x in (3.0, 3.12)]
+    cluster = np.array([2.9, 3.3, 1.55]) + rng.uniform(-0.12, 0.12, (int(start) + 10, 3))  # in the open, beside the partition
+    model.points.X.data = torch.as_tensor(np.concatenate(denser + [cluster]), dtype=model.points.X.dtype)
+    counts = task._counts_on_paths(model, float(model.binauralizer.sight_radius), float(model.binauralizer.sight_margin))
+    assert (task._in_sight & (counts >= start)).sum() >= 2  # the start's threshold now puts paths in sight behind a wall
+    task._onsets = task._onsets + np.where(task._in_sight, 0.0, 0.002)  # (and the lag it fits is the final pairs')
+    task.refit_geometry(model)
+    assert np.array_equal(counts >= float(model.binauralizer.sight_blocked), ~task._in_sight)
+    assert float(model.binauralizer.blocked_lag) == pytest.approx(0.005)
+    assert records[-1] == {"stage": "geometry", "event": "refit", "points": len(model.points.X)}

@@ -27,6 +27,7 @@ their float32 STFT targets computed there, once per use (benchmarks/memory.md).
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -34,8 +35,7 @@ import numpy as np
 import torch
 
 from avgs import dsp
-from avgs.acoustics.interaural import (DEFAULT_SCALE, fit_direct_level, fit_ild_law, fit_itd_law, fit_local_scale,
-                                      fit_scale, ild_law, local_features)
+from avgs.acoustics.interaural import DEFAULT_SCALE, fit_direct_level, fit_ild_law, fit_itd_law, fit_scale, ild_law
 from avgs.acoustics.direct_placement import FADE_SAMPLES, IMPULSE_SECONDS
 from avgs.acoustics.rir_model import RIRModel, response_waveform
 from avgs.config import STFTConfig, TrainConfig
@@ -43,6 +43,7 @@ from avgs.data.frame import signed_direction
 from avgs.data.rir import RIRScene
 from avgs.data.rwavs import RWAVSScene
 from avgs.evaluation import spatial
+from avgs.train.direct_sound_fits import DirectSoundFits, local_table
 from avgs.train.logging import JsonLinesLog
 from avgs.train.losses import band_masks, decay_loss, energy_loss
 from avgs.train.stage2 import Stage2Trainer
@@ -273,23 +274,14 @@ def direct_energy(h: np.ndarray, fs: float, itd: float, first: int | None = None
     return float(np.sum(np.asarray(h[:, lo:hi], dtype=np.float64) ** 2))
 
 
-def local_table(train, theta: torch.Tensor, ilds: np.ndarray, in_sight: np.ndarray, predicted) -> tuple:
-    """The ILD law's local correction (:func:`avgs.acoustics.interaural.local_correction`) from the training
-    pairs ``train`` (normalised positions) in sight of the source, at directions ``theta [M]``, with early
-    ILDs ``ilds [M]`` dB against what the model gives them, ``predicted [M]`` dB (the law, or the law with the
-    walls' reflections): ``(local_at [m, 6], local_residual [m], local_scale [6])`` float32, the pairs whose
-    ILD is finite."""
-    keep = np.asarray(in_sight, dtype=bool) & np.isfinite(ilds)
-    listener = torch.as_tensor(np.asarray(train.receiver, dtype=np.float64)[keep])
-    source = torch.as_tensor(np.asarray(train.source, dtype=np.float64)[keep])
-    th = theta[torch.as_tensor(keep)].double()
-    residual = torch.as_tensor(ilds[keep], dtype=torch.float64) - torch.as_tensor(np.asarray(predicted, dtype=np.float64)[keep])
-    where = local_features(listener, source, th)  # [m, 6]
-    scale = fit_local_scale(where)
-    return (where / scale).float(), residual.float(), scale.float()
+class _Unlogged:
+    """A log that keeps nothing (a resumed run measures its training pairs again: it logged them at its start)."""
+
+    def write(self, record: dict) -> None:
+        pass
 
 
-class ImpulseResponseTraining:
+class ImpulseResponseTraining(DirectSoundFits):
     """:class:`~avgs.train.tasks.TaskTraining` of the impulse-response task."""
 
     label = "RIR training"
@@ -316,6 +308,7 @@ class ImpulseResponseTraining:
         self._ilds: np.ndarray | None = None  # [M] their early ILDs, dB
         self._itds: np.ndarray | None = None  # [M] their early ITDs, s (the metric's sign)
         self._onsets: np.ndarray | None = None  # [M] their onsets, s
+        self._before_walls: tuple = (None, None)  # (ild_law, ild_table) before the walls' fit: refit_geometry starts there
         self._seed = int(cfg.seed)
         self._cfg = cfg  # the run's configuration (configure() may change it)
         self._log: JsonLinesLog | None = None
@@ -382,196 +375,7 @@ class ImpulseResponseTraining:
                     cfg.rir.ild_table = int(self.ild_table[1].shape[0])
                     log.write({"stage": "ild", "event": "local", "responses": cfg.rir.ild_table,
                                "median_abs_residual_db": float(self.ild_table[1].abs().median()) if cfg.rir.ild_table else None})
-
-    def _fit_sight(self, model: RIRModel) -> None:
-        """The straight path's test (:mod:`avgs.acoustics.line_of_sight`): the count of G_a's points along
-        a training pair's path from which it is behind a wall, fitted to the pairs' own first arrivals."""
-        from avgs.acoustics.line_of_sight import MARGIN_M, RADIUS_M, fit_blocked_count
-        from avgs.acoustics.rir_binauralizer import NEVER_BLOCKED
-
-        b, scale = model.binauralizer, float(self.scene.frame.scale)
-        radius, margin = RADIUS_M * scale, MARGIN_M * scale  # the model's units
-        counts = self._counts_on_paths(model, radius, margin)
-        threshold = fit_blocked_count(counts, self._in_sight)
-        with torch.no_grad():
-            b.sight_radius.fill_(radius)
-            b.sight_margin.fill_(margin)
-            b.sight_blocked.fill_(NEVER_BLOCKED if threshold is None else threshold)
-        if self._log is not None:
-            sight = self._in_sight
-            blocked = counts >= (NEVER_BLOCKED if threshold is None else threshold)
-            self._log.write({"stage": "sight", "event": "fit", "blocked_from_points": threshold, "pairs_in_sight": int(sight.sum()),
-                             "pairs_behind": int((~sight).sum()), "agree_in_sight": int((~blocked & sight).sum()),
-                             "agree_behind": int((blocked & ~sight).sum())})
-
-    def fit_reflections(self, model: RIRModel) -> None:
-        """The walls' first-order reflections in the first 5 ms (``RIRConfig.early_reflections``,
-        :mod:`avgs.acoustics.early_reflections`): the walls found in G_a's points, and the ILD law with the walls'
-        gain fitted together to the training pairs in sight of the source, into ``model``'s buffers (its
-        local correction's residuals then taken against them). No wall, or no fit: the law alone, as it was.
-        After the straight path's test (:meth:`_fit_sight`), which the reflections' legs share."""
-        from avgs.acoustics import early_reflections as er
-
-        b, scale, train = model.binauralizer, float(self.scene.frame.scale), self.train_set
-        points = model.points.X.detach().double().cpu()
-        walls = er.find_walls(points, scale, seed=self._seed)  # [P, 3]
-        test = er.ReflectionTest.at_scale(scale, b.sight_radius, b.sight_margin, b.sight_blocked)
-        listener = torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64)
-        source = torch.as_tensor(np.asarray(train.source), dtype=torch.float64)
-        yaw = torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64)))
-        distance = torch.linalg.vector_norm(source - listener, dim=-1)  # [M]
-        found = er.wall_reflections(listener, source, walls, points, test, longest=distance + er.WINDOW_S * model.rir.sound_speed)
-        P = walls.shape[0]
-        reflected = er.image_directions(listener, yaw, found.image)  # [M, P]
-        sight = torch.as_tensor(self._in_sight)
-        fit = er.fit_early_ild(self._theta[sight], distance[sight], reflected[sight], found.path[sight], found.happens[sight],
-                               self._ilds[self._in_sight], b.ild_law.detach().double().cpu().numpy()) if P else None
-        record = {"stage": "reflections", "event": "fit", "walls": P, "pairs_in_sight": int(sight.sum()),
-                  "reflections_per_pair": float(found.happens[sight].double().sum(-1).mean()) if P else 0.0}
-        if fit is not None:
-            law, gain = fit
-            with torch.no_grad():
-                b.reflecting_walls.zero_()
-                b.reflecting_walls[:P].copy_(walls[: b.reflecting_walls.shape[0]])
-                b.reflection_gain.fill_(gain)
-                b.reflection_radius.fill_(test.surface_radius)
-                b.reflection_points.fill_(float(test.surface_points))
-                b.reflection_band.fill_(test.wall_band)
-                b.ild_law.copy_(torch.as_tensor(law))
-            self.ild_law = [float(c) for c in law]
-            predicted = er.early_ild(self._theta, distance, reflected, found.path, found.happens, torch.as_tensor(law), gain)
-            residual = (torch.as_tensor(self._ilds) - predicted)[sight]
-            record.update({"gain": gain, "harmonics_db": self.ild_law, "median_abs_residual_db": float(residual.abs().nanmedian())})
-            if getattr(b, "local_at", None) is not None:  # the local correction: what the walls leave
-                self.ild_table = local_table(train, self._theta, self._ilds, self._in_sight, predicted.numpy())
-                with torch.no_grad():
-                    b.local_residual.copy_(self.ild_table[1])
-        if self._log is not None:
-            self._log.write(record)
-        if fit is not None and getattr(b, "reflected_arrival", None) is not None:
-            self._fit_arrival(model)
-
-    def _fit_arrival(self, model: RIRModel) -> None:
-        """Where the first sound behind a wall comes from (``RIRConfig.reflected_arrival``): on the training pairs
-        whose straight path the points' test puts behind a wall and that have a first-order reflection off the
-        walls found, the head's ITD at the reflection's direction against the straight direction's, and its
-        path / c against distance / c, each against the pairs' measured early ITDs and onsets; each of the
-        reflection's where it is the closer (:func:`~avgs.acoustics.early_reflections.reflection_first`), into
-        ``model``'s ``reflected_arrival`` (direction, delay). Many pairs the points block hear their first sound
-        within 1 ms of distance / c all the same (a third of three_rooms'): there the straight line's delay is
-        the better one, and the onsets say so."""
-        from avgs.acoustics.early_reflections import first_reflection, image_directions, reflection_first
-
-        b = model.binauralizer
-        at, listener, source, yaw = self._behind_a_wall(model)
-        setup = model.reflection_setup()
-        record = {"stage": "arrival", "event": "fit", "pairs_behind": int(at.numel()), "with_reflection": 0,
-                  "direction": False, "delay": False}
-        if setup is not None and at.numel():
-            walls, test, _ = setup
-            first = first_reflection(listener, source, walls, model.points.X.detach().double().cpu(), test)
-            ok = first.found
-            measured = -torch.as_tensor(self._itds, dtype=torch.float64)[at][ok]  # the head's sign: > 0 right ear later
-            straight = model.head_itd(signed_direction(listener, yaw, source))[ok]
-            reflected = model.head_itd(image_directions(listener, yaw, first.image[:, None])[:, 0])[ok]
-            direction, itd_straight, itd_reflected = reflection_first(measured, straight, reflected)
-            c = float(model.rir.sound_speed)
-            onsets = torch.as_tensor(self._onsets, dtype=torch.float64)[at][ok]
-            delay, onset_straight, onset_reflected = reflection_first(
-                onsets, torch.linalg.vector_norm(source - listener, dim=-1)[ok] / c, first.path[ok] / c)
-            record.update({"with_reflection": int(ok.sum()), "direction": direction, "delay": delay,
-                           "itd_error_us": [None if e is None else 1e6 * e for e in (itd_straight, itd_reflected)],
-                           "onset_error_ms": [None if e is None else 1e3 * e for e in (onset_straight, onset_reflected)]})
-        with torch.no_grad():
-            b.reflected_arrival.copy_(torch.tensor([float(record["direction"]), float(record["delay"])]))
-        if self._log is not None:
-            self._log.write(record)
-
-    def fit_lag(self, model: RIRModel) -> None:
-        """When the first sound behind a wall arrives (``RIRConfig.blocked_lag``): on the training pairs whose
-        straight path the points' test puts behind a wall, the median of their onsets after distance / c (at
-        least 0), into ``model``'s ``blocked_lag`` where distance / c plus it is closer to their onsets, by the
-        median absolute error, than what the model places there without it (the straight line, or the first
-        reflection: :meth:`_fit_arrival`); else 0. Needs :data:`~avgs.acoustics.early_reflections.ARRIVAL_PAIRS`
-        pairs behind a wall. After the straight path's test and the first reflection's fit."""
-        from avgs.acoustics.early_reflections import ARRIVAL_PAIRS
-
-        b = model.binauralizer
-        with torch.no_grad():
-            b.blocked_lag.zero_()
-        at, listener, source, yaw = self._behind_a_wall(model)
-        record = {"stage": "lag", "event": "fit", "pairs_behind": int(at.numel()), "lag_ms": 0.0}
-        if at.numel() >= ARRIVAL_PAIRS:
-            c = float(model.rir.sound_speed)
-            straight = torch.linalg.vector_norm(source - listener, dim=-1).numpy() / c  # [A] s
-            onsets = np.asarray(self._onsets, dtype=np.float64)[at.numpy()]
-            lag = max(0.0, float(np.median(onsets - straight)))
-            with torch.no_grad():
-                placed = model.direct_sound(listener.to(model.points.X), yaw.to(model.points.X), source.to(model.points.X))
-            now = float(np.median(np.abs(placed.arrival.double().cpu().numpy() - onsets)))
-            lagged = float(np.median(np.abs(straight + lag - onsets)))
-            record.update({"onset_error_ms": [1e3 * now, 1e3 * lagged]})
-            if lagged < now:
-                record["lag_ms"] = 1e3 * lag
-                with torch.no_grad():
-                    b.blocked_lag.fill_(lag)
-        if self._log is not None:
-            self._log.write(record)
-
-    def fit_blocked_ild(self, model: RIRModel) -> None:
-        """Behind a wall, B's early ILD times a factor (``RIRConfig.blocked_ild``,
-        :func:`avgs.train.blocked_ild.fit_factor`) fitted on the training pairs whose straight path the points'
-        test puts behind a wall; 1 (B's own) with fewer than
-        :data:`~avgs.acoustics.early_reflections.ARRIVAL_PAIRS` of them. With B trained: at the end."""
-        from avgs.acoustics.early_reflections import ARRIVAL_PAIRS
-        from avgs.train.blocked_ild import fit_factor
-
-        with torch.no_grad():
-            model.binauralizer.blocked_ild.fill_(1.0)
-        at, listener, source, yaw = self._behind_a_wall(model)
-        record = {"stage": "blocked_ild", "event": "fit", "pairs_behind": int(at.numel()), "factor": 1.0}
-        if at.numel() >= ARRIVAL_PAIRS and self._ilds is not None:
-            truth = np.asarray(self._ilds, dtype=np.float64)[at.numpy()]
-            record.update(fit_factor(model, listener, yaw, source, truth, self._cfg.rir, self._cfg.stft, self.responses.length))
-        if self._log is not None:
-            self._log.write(record)
-
-    def _behind_a_wall(self, model: RIRModel) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The training pairs whose straight path the points' test puts behind a wall (the deployment's test):
-        their indices ``[A]``, listeners and sources ``[A, 3]`` (float64, model units) and yaws ``[A]`` radians."""
-        b, train = model.binauralizer, self.train_set
-        blocked = torch.as_tensor(self._counts_on_paths(model, float(b.sight_radius), float(b.sight_margin))
-                                  >= float(b.sight_blocked))  # [M]
-        at = torch.nonzero(blocked, as_tuple=True)[0]
-        listener = torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64)[at]
-        source = torch.as_tensor(np.asarray(train.source), dtype=torch.float64)[at]
-        yaw = torch.as_tensor(np.radians(np.asarray(train.yaw, dtype=np.float64)))[at]
-        return at, listener, source, yaw
-
-    def _counts_on_paths(self, model: RIRModel, radius: float, margin: float) -> np.ndarray:
-        """How many of G_a's points lie along each training pair's straight path ``[M]`` (model units)."""
-        from avgs.acoustics.line_of_sight import points_on_path
-
-        train = self.train_set
-        return points_on_path(model.points.X.detach().double().cpu(), torch.as_tensor(np.asarray(train.receiver), dtype=torch.float64),
-                              torch.as_tensor(np.asarray(train.source), dtype=torch.float64), radius, margin).numpy()
-
-    def _fit_walls(self, model: RIRModel) -> None:
-        """The walls' count of B's wall term (``RIRConfig.wall_loss``): the straight path's test
-        (:meth:`_fit_sight`) within :func:`~avgs.acoustics.line_of_sight.wall_radius`, wide enough for sparse
-        points, its unit the count from which a training pair was behind a wall."""
-        from avgs.acoustics.line_of_sight import MARGIN_M, RADIUS_M, fit_blocked_count, wall_radius
-        from avgs.acoustics.rir_binauralizer import NEVER_BLOCKED
-
-        b, scale = model.binauralizer, float(self.scene.frame.scale)
-        radius, margin = wall_radius(model.points.X, RADIUS_M * scale), MARGIN_M * scale  # the model's units
-        unit = fit_blocked_count(self._counts_on_paths(model, radius, margin), self._in_sight)
-        with torch.no_grad():
-            b.wall_radius.fill_(radius)
-            b.wall_margin.fill_(margin)
-            b.wall_unit.fill_(NEVER_BLOCKED if unit is None else unit)
-        if self._log is not None:
-            self._log.write({"stage": "walls", "event": "fit", "radius_m": radius / scale, "unit_points": unit})
+            self._before_walls = (self.ild_law, self.ild_table)  # what fit_reflections starts from (refit_geometry)
 
     def trainer(self, model: RIRModel, cfg: TrainConfig, resumed: bool) -> RIRTrainer:
         """The trainer on the training responses; a fresh model's floor, mean response and mean
@@ -579,6 +383,9 @@ class ImpulseResponseTraining:
         if int(self.responses.length) != cfg.rir.length:
             raise ValueError(f"{self.responses.scene_dir}: responses of {self.responses.length} samples, "
                              f"the checkpoint's of {cfg.rir.length}")
+        if resumed and self._in_sight is None and cfg.rir.direct_sound:  # what the end's fits read (refit_geometry)
+            self.configure(copy.deepcopy(cfg), _Unlogged())  # the same measures of the training pairs; cfg as it was
+            self._log = None
         if not resumed and self.itd_scale is not None:
             with torch.no_grad():
                 model.binauralizer.itd_scale.fill_(self.itd_scale)
@@ -624,8 +431,10 @@ class ImpulseResponseTraining:
         return trainer.evaluate(self.evals["val"]) if "val" in self.evals else {}
 
     def final(self, trainer: RIRTrainer, final: dict) -> dict:
-        """Behind a wall, the early ILD's factor fitted (:meth:`fit_blocked_ild`, B trained); then log
-        magnitudes and T60 / C50 / EDT on every held-back split."""
+        """The straight path's tests fitted again on G_a as stage 2 left it (:meth:`refit_geometry`); behind a
+        wall, the early ILD's factor fitted (:meth:`fit_blocked_ild`, B trained); then log magnitudes and
+        T60 / C50 / EDT on every held-back split."""
+        self.refit_geometry(trainer.model)
         if getattr(trainer.model.binauralizer, "blocked_ild", None) is not None:
             self.fit_blocked_ild(trainer.model)
         final = final or {"iteration": trainer.iteration, "points": trainer.model.points.num_points}

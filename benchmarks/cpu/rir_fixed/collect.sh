@@ -6,5 +6,5 @@ for d in runs/fix3/table/*/*/seed*; do
   [ -e $d/spatial.json ] || continue
   S=$(basename $(dirname $(dirname $d))); K=$(basename $(dirname $d)); N=$(basename $d)
   P=${S%_fixed}; cp $d/spatial.json $B/runs/$P-$K-$N.spatial.json
-  case $K in *-no-lag|*-ild) ;; *) cp $(realpath $d/scene.ckpt).log.jsonl $B/runs/$P-$K-$N.log.jsonl;; esac
+  case $K in *-no-lag|*-ild|*-geo) ;; *) cp $(realpath $d/scene.ckpt).log.jsonl $B/runs/$P-$K-$N.log.jsonl;; esac
 done

@@ -5,7 +5,10 @@ u_room and l_room with this code), else from ../rir_defaults/reflections/runs (2
 
     python benchmarks/cpu/rir_fixed/overall.py
 
-"avgs-ild" and "no-context-ild": the same checkpoints with the early ILD's factor behind a wall (blocked_ild.sh).
+"avgs-ild" and "no-context-ild": the same checkpoints with the early ILD's factor behind a wall (blocked_ild.sh);
+"avgs-geo" and "no-context-geo": those with the straight path's tests fitted again on their own final points, what
+training now does at its end (geometry.sh). rect_small and rect_large keep their runs: no training pair there is
+behind a wall, so neither changes them.
 """
 
 import json
@@ -43,15 +46,16 @@ def main() -> None:
                 scenes[scene.removesuffix("_fixed")] = m
             o = overall(scenes)
             print(f"| {method} | " + " | ".join(f.format(o[k]) for k, f in KEYS) + " |")
-        for setting, when in (("avgs", "before"), ("avgs", "after"), ("avgs-ild", "after"), ("no-context", "before"),
-                              ("no-context", "after"), ("no-context-ild", "after")):
+        for setting, when in (("avgs", "before"), ("avgs", "after"), ("avgs-ild", "after"), ("avgs-geo", "after"),
+                              ("no-context", "before"), ("no-context", "after"), ("no-context-ild", "after"),
+                              ("no-context-geo", "after")):
+            plain = setting.removesuffix("-ild").removesuffix("-geo")
             seeds = []
             for k in range(3):
                 scenes = {}
-                # the runs here last: they replace; a "-ild" setting (blocked_ild.sh) over its plain one's, where a
-                # preset has no pair behind a wall (rect_small, rect_large) the factor has nothing to change
-                for folder, name in ((OLD / "reflections" / "runs", setting.removesuffix("-ild")),
-                                     (HERE / "runs", setting.removesuffix("-ild")), (HERE / "runs", setting)):
+                # the runs here last: they replace; a "-ild" or "-geo" setting (blocked_ild.sh, geometry.sh) over its
+                # plain one's, where a preset has no pair behind a wall (rect_small, rect_large) they change nothing
+                for folder, name in ((OLD / "reflections" / "runs", plain), (HERE / "runs", plain), (HERE / "runs", setting)):
                     scenes.update({p.name.split(f"-{name}-seed")[0]: run_scores(p, split, when)
                                    for p in folder.glob(f"*-{name}-seed{k}.spatial.json")})
                 seeds.append(overall(scenes))
