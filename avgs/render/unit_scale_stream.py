@@ -28,8 +28,8 @@ class UnitScaleStream:
     """``inner`` (a :class:`~avgs.render.tasks.BlockStream`) fed each block over a scale ``2^k``
     (``k`` from the first block with a sample other than zero: its peak rounded up to a power of two,
     at least ``2^LEAST_SCALE_EXP``), its output times the same scale. A block louder than
-    ``2^RANGE_EXP`` times the scale, or an output beyond float32's range, raises ValueError naming
-    the peaks; the stream goes on after it (the block was not taken)."""
+    ``2^RANGE_EXP`` times the scale raises ValueError naming both before it is taken (the stream goes
+    on as if it had not come); an output beyond float32's range raises ValueError too."""
 
     def __init__(self, inner: BlockStream):
         self.inner = inner
@@ -45,7 +45,7 @@ class UnitScaleStream:
 
     def _scaled(self, block) -> np.ndarray:
         x = np.asarray(block)
-        if x.dtype.kind not in "fc":
+        if x.dtype not in (np.float32, np.float64):  # ints, float16 (whose range the division could leave), lists
             x = x.astype(np.float64)
         top = float(np.max(np.abs(x))) if x.size else 0.0
         if not math.isfinite(top):
