@@ -28,7 +28,10 @@ that comes sooner waits on a timer instead of asking Qt for a repaint. A render 
 short, and a mouse event that comes while one runs waits behind it (the release, and with it
 the released pose's sound); so the GUI thread is left free at least as long as a frame interval
 between two renders, and the drag's moves are handled (their poses sent to the audio path)
-as they come, each frame drawing the newest of them.
+as they come, each frame drawing the newest of them. A panel that shows the moving pose (the pose
+fields) updates through :meth:`SceneCanvas.with_frame` then: just before a frame is asked for, so its
+repaint shares that frame's composition of the window instead of costing one of its own (with
+software GL ~10 ms of the GUI thread each, while the next move and the release wait).
 """
 
 from __future__ import annotations
@@ -80,6 +83,16 @@ class SceneCanvas(QtInteractor):
         self._frame_gate.setSingleShot(True)
         self._frame_gate.setTimerType(QtCore.Qt.TimerType.PreciseTimer)
         self._frame_gate.timeout.connect(self._request)
+        self._with_frame: dict = {}  # key -> what to do just before the next frame is asked for (with_frame)
+
+    def with_frame(self, key, update: Callable[[], None]) -> None:
+        """Call ``update`` now, or during a handle drag just before the next frame is asked for (the newest
+        per ``key``), so that the widgets it changes repaint with that frame: one composition of the window."""
+        if not getattr(self, "dragging", False) and not self._with_frame:
+            update()
+            return
+        self._with_frame[key] = update
+        self._request()
 
     def set_dragging(self, dragging: bool) -> None:
         """A handle drag starts (renders spaced by DRAG_FRAME_S) or ends (a render waiting on the frame gate is
@@ -87,7 +100,7 @@ class SceneCanvas(QtInteractor):
         self.dragging = bool(dragging)
         if not dragging:  # the released pose's sound gets a whole HOLD_MAX_S, not what the drag's moves left
             self._held_since = None
-        if not dragging and self._frame_gate.isActive():
+        if not dragging and (self._frame_gate.isActive() or self._with_frame):
             self._frame_gate.stop()
             self._request()
 
@@ -102,6 +115,9 @@ class SceneCanvas(QtInteractor):
                 return
         if self._waiting():  # not even a repaint that draws nothing: Qt composes the window for each
             return
+        updates, self._with_frame = getattr(self, "_with_frame", {}), {}
+        for update in updates.values():  # their widgets repaint with this frame
+            update()
         self.update()
 
     def _waiting(self) -> bool:
@@ -140,6 +156,7 @@ class SceneCanvas(QtInteractor):
 
     def close(self) -> None:
         self.hold = None
+        self._with_frame = {}
         self._retry.stop()
         self._frame_gate.stop()
         iren, self._vtk_iren = self._vtk_iren, None

@@ -105,7 +105,7 @@ class ControlPanel(QtWidgets.QWidget):
     def bind(self, state: ViewerState, view: SceneView) -> None:
         """Mirror ``state`` in the widgets (and widgets into it)."""
         self.state, self.view = state, view
-        self.pose.bind(state)
+        self.pose.bind(state, getattr(view.plotter, "with_frame", None))  # the pose fields move with the view's frames
         with QtCore.QSignalBlocker(self.colour_mode):
             self.colour_mode.clear()
             for mode, name in COLOUR_MODE_NAMES.items():

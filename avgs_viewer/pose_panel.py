@@ -137,8 +137,11 @@ class PosePanel(QtWidgets.QGroupBox):
         if focused is not None and self.isAncestorOf(focused):
             self.left.emit()
 
-    def bind(self, state: ViewerState) -> None:
-        """Mirror ``state`` in the fields (and typed values into it)."""
+    def bind(self, state: ViewerState, with_frame: Callable[[str, Callable[[], None]], None] | None = None) -> None:
+        """Mirror ``state`` in the fields (and typed values into it). ``with_frame(key, update)``: how a moving pose
+        reaches the fields (the 3D view's :meth:`~avgs_viewer.canvas.SceneCanvas.with_frame`: with its frames
+        during a drag); None: at once."""
+        self._with_frame = with_frame
         if self.state is not None:
             for event, cb in self._subscriptions():
                 event.disconnect(cb)
@@ -179,15 +182,29 @@ class PosePanel(QtWidgets.QGroupBox):
             with QtCore.QSignalBlocker(box):
                 box.setValue(float(v))
 
+    def _update(self, key: str, update: Callable[[], None]) -> None:
+        later = getattr(self, "_with_frame", None)
+        if later is None:
+            update()
+        else:
+            later(f"pose.{key}", update)
+
     def _show_listener(self, xyz) -> None:
-        self._show(self.listener, xyz)
+        xyz = tuple(float(v) for v in xyz)
+        self._update("listener", lambda: self._show(self.listener, xyz))
 
     def _show_source(self, xyz) -> None:
-        self._show(self.source, xyz)
+        xyz = tuple(float(v) for v in xyz)
+        self._update("source", lambda: self._show(self.source, xyz))
 
     def _show_yaw(self, yaw: float) -> None:
-        with QtCore.QSignalBlocker(self.yaw):
-            self.yaw.setValue(float(yaw))
+        yaw = float(yaw)
+
+        def show() -> None:
+            with QtCore.QSignalBlocker(self.yaw):
+                self.yaw.setValue(yaw)
+
+        self._update("yaw", show)
 
     def _show_notice(self, message: str) -> None:
         self.notice.setText(message)

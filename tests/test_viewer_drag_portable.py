@@ -14,6 +14,7 @@ import pytest
 pytest.importorskip("pytestqt")
 from PySide6 import QtCore  # noqa: E402
 
+from avgs_viewer.canvas import HOLD_MAX_S  # noqa: E402
 from real_events import drag_handle, open_window, screen_xy  # noqa: E402
 
 pytestmark = pytest.mark.gui
@@ -81,5 +82,61 @@ def test_portable_drag_sends_each_pose_before_the_next_render(qtbot, x, monkeypa
         assert np.linalg.norm(w.state.listener[:2] - target[:2]) < 0.05  # the handle followed the pointer
         qtbot.waitUntil(lambda: w.live.heard.request.seq == w.live.seq, timeout=10_000)
         assert np.allclose(w.live.heard.request.pose.listener, w.state.listener)  # and is what plays
+    finally:
+        w.close()
+
+
+class _Paints(QtCore.QObject):
+    """The times of the pose fields' paints and of the 3D view's renders (its render window's StartEvent)."""
+
+    def __init__(self, w):
+        super().__init__()
+        self.window, self.fields, self.renders = w, [], []
+        self._boxes = set(w.panel.pose.listener)
+        for box in self._boxes:
+            box.installEventFilter(self)
+        self._observer = w.plotter.ren_win.AddObserver("StartEvent", lambda *_: self.renders.append(time.perf_counter()))
+
+    def close(self) -> None:
+        self.window.plotter.ren_win.RemoveObserver(self._observer)
+        for box in self._boxes:
+            box.removeEventFilter(self)
+
+    def eventFilter(self, obj, event):  # noqa: N802
+        if event.type() == QtCore.QEvent.Type.Paint:
+            self.fields.append(time.perf_counter())
+        return False
+
+
+def test_during_a_drag_the_pose_fields_repaint_only_with_the_views_frames(qtbot, x, monkeypatch):
+    """The listener's fields follow a drag, but each of their repaints comes with a frame of the 3D view (the same
+    composition of the window, SceneCanvas.with_frame), and after the release they show where it ended."""
+    if not DEMO.is_file():
+        pytest.skip("the bundled demo scene is missing (scripts/make_demo.sh)")
+    monkeypatch.setenv("AVGS_VIEWER_NO_POINTER", "1")
+    w = open_window(qtbot, DEMO)
+    try:
+        qtbot.waitUntil(lambda: w.live.heard is not None and w.live.heard.request.seq == w.live.seq, timeout=30_000)
+        qtbot.wait(300)
+        paints = _Paints(w)
+        before = [box.value() for box in w.panel.pose.listener]
+        bounds = np.asarray(w.state.bounds)
+        target = np.array([*(0.3 * bounds[0, :2] + 0.7 * bounds[1, :2]), w.state.listener[2]])
+        drag_handle(qtbot, w, x, "listener", screen_xy(w, w.state.listener), screen_xy(w, target), steps=16)
+        qtbot.waitUntil(lambda: w.live.heard.request.seq == w.live.seq, timeout=10_000)
+        qtbot.wait(400)
+        paints.close()
+        shown = [box.value() for box in w.panel.pose.listener]
+        assert np.allclose(shown, np.round(w.state.listener, 2), atol=0.006) and not np.allclose(shown, before)
+        # the three fields repaint together (one burst); each burst in a frame's composition: the window's raster
+        # widgets are painted just before the view's render (or its render is held for the sound, HOLD_MAX_S at
+        # most, and follows). Each move's own repaint, as before, made more bursts than frames (15 for 10), some
+        # 15-40 ms after a render with none soon after them.
+        bursts = [t for i, t in enumerate(paints.fields) if i == 0 or t - paints.fields[i - 1] > 0.003]
+        renders = np.array(paints.renders)
+        assert 2 <= len(bursts) <= len(renders) + 2, (bursts, paints.renders)
+        for t in bursts:
+            after = renders[renders >= t]
+            assert after.size and after[0] - t < HOLD_MAX_S + 0.05, (t, paints.renders)
     finally:
         w.close()
