@@ -51,14 +51,25 @@ class _Log(QtCore.QObject):
         return False
 
 
-def test_portable_drag_sends_each_pose_before_the_next_render(qtbot, x, monkeypatch):
+def _portable_window(qtbot, monkeypatch, settle_ms: int):
+    """The demo's window on Qt's events alone (``AVGS_VIEWER_NO_POINTER=1``), its first pose heard, then
+    ``settle_ms`` for the paints that follow; skips without the demo."""
     if not DEMO.is_file():
         pytest.skip("the bundled demo scene is missing (scripts/make_demo.sh)")
     monkeypatch.setenv("AVGS_VIEWER_NO_POINTER", "1")
     w = open_window(qtbot, DEMO)
     try:
         qtbot.waitUntil(lambda: w.live.heard is not None and w.live.heard.request.seq == w.live.seq, timeout=30_000)
-        qtbot.wait(200)
+        qtbot.wait(settle_ms)
+    except BaseException:
+        w.close()
+        raise
+    return w
+
+
+def test_portable_drag_sends_each_pose_before_the_next_render(qtbot, x, monkeypatch):
+    w = _portable_window(qtbot, monkeypatch, 200)
+    try:
         log = _Log(w)
         start = screen_xy(w, w.state.listener)
         bounds = np.asarray(w.state.bounds)
@@ -111,13 +122,8 @@ class _Paints(QtCore.QObject):
 def test_during_a_drag_the_pose_fields_repaint_only_with_the_views_frames(qtbot, x, monkeypatch):
     """The listener's fields follow a drag, but each of their repaints comes with a frame of the 3D view (the same
     composition of the window, SceneCanvas.with_frame), and after the release they show where it ended."""
-    if not DEMO.is_file():
-        pytest.skip("the bundled demo scene is missing (scripts/make_demo.sh)")
-    monkeypatch.setenv("AVGS_VIEWER_NO_POINTER", "1")
-    w = open_window(qtbot, DEMO)
+    w = _portable_window(qtbot, monkeypatch, 300)
     try:
-        qtbot.waitUntil(lambda: w.live.heard is not None and w.live.heard.request.seq == w.live.seq, timeout=30_000)
-        qtbot.wait(300)
         paints = _Paints(w)
         before = [box.value() for box in w.panel.pose.listener]
         bounds = np.asarray(w.state.bounds)
