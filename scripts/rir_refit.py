@@ -28,11 +28,8 @@ from avgs.acoustics.rir_binauralizer import REFLECTION_BUFFERS, RIRBinauralizer
 from avgs.io.checkpoint import config_of, load_checkpoint, save_checkpoint
 from avgs.render.renderer import SceneRenderer
 from avgs.train.impulse_responses import ImpulseResponseTraining
+from avgs.train.logging import Unlogged
 
-
-class _Quiet:
-    def write(self, record: dict) -> None:
-        pass
 
 
 def refit(scene_dir: str, ckpt_path: str, out_path: str, level: bool = True, reflections: bool = True,
@@ -113,7 +110,7 @@ def _configured(scene_dir: str, cfg, ckpt_path: str) -> ImpulseResponseTraining:
     task = ImpulseResponseTraining(scene_dir, cfg)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        task.configure(cfg, _Quiet())
+        task.configure(cfg, Unlogged())
     return task
 
 
@@ -145,9 +142,9 @@ def _refit_geometry(scene_dir: str, data: dict, ckpt_path: str, out_path: str) -
     task.refit_geometry(model)
     if getattr(b, "blocked_ild", None) is not None:
         task.fit_blocked_ild(model)
-    state = b.state_dict()
+    state, weights = b.state_dict(), {name for name, _ in b.named_parameters()}
     for key in data["binauralizer"]:
-        if key in state and key not in dict(b.named_parameters()):
+        if key in state and key not in weights:
             data["binauralizer"][key] = state[key].detach().cpu().clone()
     save_checkpoint(data, out_path)
     lag = "" if b.blocked_lag is None else f", lag {1e3 * float(b.blocked_lag):.1f} ms"

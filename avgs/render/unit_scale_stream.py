@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from .tasks import BlockStream
+from .tasks import BlockStream, peak
 
 LEAST_SCALE_EXP = -40
 "The scale is at least 2^-40 (-240 dB re 1): a stream that starts below it still takes louder blocks later."
@@ -47,7 +47,7 @@ class UnitScaleStream:
         x = np.asarray(block)
         if x.dtype not in (np.float32, np.float64):  # ints, float16 (whose range the division could leave), lists
             x = x.astype(np.float64)
-        top = float(np.max(np.abs(x))) if x.size else 0.0
+        top = peak(x)  # NaN for NaN or Inf samples
         if not math.isfinite(top):
             return x  # the inner stream says what is wrong with it (NaN or Inf)
         if self.scale is None:

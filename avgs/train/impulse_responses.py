@@ -44,7 +44,7 @@ from avgs.data.rir import RIRScene
 from avgs.data.rwavs import RWAVSScene
 from avgs.evaluation import spatial
 from avgs.train.direct_sound_fits import DirectSoundFits, local_table
-from avgs.train.logging import JsonLinesLog
+from avgs.train.logging import JsonLinesLog, Unlogged
 from avgs.train.losses import band_masks, decay_loss, energy_loss
 from avgs.train.stage2 import Stage2Trainer
 
@@ -274,13 +274,6 @@ def direct_energy(h: np.ndarray, fs: float, itd: float, first: int | None = None
     return float(np.sum(np.asarray(h[:, lo:hi], dtype=np.float64) ** 2))
 
 
-class _Unlogged:
-    """A log that keeps nothing (a resumed run measures its training pairs again: it logged them at its start)."""
-
-    def write(self, record: dict) -> None:
-        pass
-
-
 class ImpulseResponseTraining(DirectSoundFits):
     """:class:`~avgs.train.tasks.TaskTraining` of the impulse-response task."""
 
@@ -384,7 +377,7 @@ class ImpulseResponseTraining(DirectSoundFits):
             raise ValueError(f"{self.responses.scene_dir}: responses of {self.responses.length} samples, "
                              f"the checkpoint's of {cfg.rir.length}")
         if resumed and self._in_sight is None and cfg.rir.direct_sound:  # what the end's fits read (refit_geometry)
-            self.configure(copy.deepcopy(cfg), _Unlogged())  # the same measures of the training pairs; cfg as it was
+            self.configure(copy.deepcopy(cfg), Unlogged())  # the same measures of the training pairs; cfg as it was
             self._log = None
         if not resumed and self.itd_scale is not None:
             with torch.no_grad():

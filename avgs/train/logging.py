@@ -22,6 +22,14 @@ def _plain(value):
     return value
 
 
+class Unlogged:
+    """A log that keeps nothing: fits made again for what they compute (a resumed run's training pairs,
+    ``scripts/rir_refit.py``), whose records the run's log already holds."""
+
+    def write(self, record: dict) -> None:
+        pass
+
+
 class JsonLinesLog:
     """Append-only JSON-lines log that also keeps its records in memory."""
 
