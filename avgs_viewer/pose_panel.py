@@ -88,6 +88,7 @@ class PosePanel(QtWidgets.QGroupBox):
     def __init__(self, parent: QtWidgets.QWidget | None = None):
         super().__init__("Pose (world coordinates)", parent)
         self.state: ViewerState | None = None
+        self._with_frame: Callable[[str, Callable[[], None]], None] | None = None  # bind's
         grid = QtWidgets.QGridLayout(self)
         grid.setContentsMargins(6, 6, 6, 6)
         grid.setHorizontalSpacing(4)
@@ -183,11 +184,10 @@ class PosePanel(QtWidgets.QGroupBox):
                 box.setValue(float(v))
 
     def _update(self, key: str, update: Callable[[], None]) -> None:
-        later = getattr(self, "_with_frame", None)
-        if later is None:
+        if self._with_frame is None:
             update()
         else:
-            later(f"pose.{key}", update)
+            self._with_frame(f"pose.{key}", update)
 
     def _show_listener(self, xyz) -> None:
         xyz = tuple(float(v) for v in xyz)
