@@ -267,6 +267,7 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, idle_s: float = 5.0
                     "gl": next((ln.strip() for ln in w.plotter.ren_win.ReportCapabilities().splitlines()
                                 if "OpenGL renderer string" in ln), "unknown"),
                     "view": [w.plotter.width(), w.plotter.height()], "window": [w.width(), w.height()],
+                    "view_kind": type(w.plotter).__name__,
                     "points": int(len(w.renderer.points)), "drawn": int(len(w.view.drawn)),
                     "audio": w.output.message or "sound card", "block": w.engine.block,
                     "sample_rate": w.engine.sample_rate, "filter_taps": int(w.live.heard.result.impulse.shape[1]),
@@ -302,7 +303,9 @@ def run_viewer_bench(scene_path: Any, out: Any, n: int = 30, idle_s: float = 5.0
         f"Command: `{info['command']}` ({info['date_utc']})  ",
         f"Machine: {info['cpu']}, {info['cpu_cores_available']} cores, load {info.get('load_average_1m_at_start')} "
         f"at start; torch {info['torch']}  ",
-        f"GL: {setup['gl']}; display {result['display']}  ",
+        f"GL: {setup['gl']}; display {result['display']}; 3D view: "
+        + {"NativeCanvas": "a native window VTK draws into", "GLWidgetCanvas": "pyvistaqt's QOpenGLWidget, composed by Qt"
+           }.get(setup["view_kind"], setup["view_kind"]) + " (avgs_viewer/canvas.py)  ",
         f"Scene: `{scene_path}`, {setup['points']} audio points ({setup['drawn']} drawn); window "
         f"{setup['window'][0]}x{setup['window'][1]}, 3D view {setup['view'][0]}x{setup['view'][1]}  ",
         f"Audio: {setup['audio']}; blocks of {setup['block']} samples ({block_ms:.1f} ms), "

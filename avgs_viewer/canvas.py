@@ -1,25 +1,35 @@
-"""The window's 3D view: a ``pyvistaqt.QtInteractor`` that draws on demand, coalesced.
+"""The window's 3D view: a pyvista plotter that draws on demand, coalesced.
 
-pyvistaqt draws in three ways that each cost a full VTK render on the GUI thread, and
+Two kinds, one behaviour (:class:`SceneCanvas`):
+
+- :class:`NativeCanvas` (X11, XWayland, Windows, macOS; :mod:`avgs_viewer.native_view`): VTK draws
+  into the view's own native window and swaps it, and the window's other widgets repaint by
+  raster copies of their own areas;
+- :class:`GLWidgetCanvas` (a Wayland display, or ``AVGS_VIEWER_VIEW=opengl-widget``): pyvistaqt's
+  ``QOpenGLWidget``, whose frames Qt composes into the whole top-level window with OpenGL, and
+  every repaint of any other widget of that window composes it again (with software GL, as much
+  time again as the render: ``benchmarks/viewer.md``).
+
+pyvista's Qt plotters draw in three ways that each cost a full VTK render on the GUI thread, and
 on software GL a render is tens of milliseconds during which mouse events wait:
 
 - a periodic render timer (5 Hz by default, 69 % of a core with the window idle on
   Mesa under Xvfb);
 - ``plotter.render()``, which renders at once and then schedules a repaint, whose
-  ``paintGL`` renders again (two renders per call, one per pose change of a drag);
+  paint renders again (two renders per call, one per pose change of a drag);
 - the VTK interactor's ``Render()`` on every camera move of an orbit, again followed
   by a repaint that renders.
 
 Here all three become one request: ``render()`` and the interactor's render requests
 only mark the widget for repaint (``QWidget.update``, which Qt coalesces), and
-``paintGL`` renders once. So at most one render is in flight, none runs while nothing
+the paint renders once. So at most one render is in flight, none runs while nothing
 changed, and any number of changes between two paints cost one render. What needs
 the pixels at once (screenshots) calls :meth:`SceneCanvas.render_now`.
 
 Sound first: while :attr:`SceneCanvas.hold` says the audio path is making a pose's
 filter (a few ms) or the filter waits for its first audio block, a paint keeps the last
 frame and tries again 2 ms later (without asking Qt for a repaint meanwhile: each repaint,
-even one that draws nothing, composes the whole window), for at most :data:`HOLD_MAX_S`: a software-GL render,
+even one that draws nothing, composes the whole window of a ``GLWidgetCanvas``), for at most :data:`HOLD_MAX_S`: a software-GL render,
 whose threads take every core, never runs between a pose change and its sound.
 
 Input first, during a handle drag (:meth:`SceneCanvas.set_dragging`, from the window's mouse): at
@@ -30,8 +40,8 @@ the released pose's sound); so the GUI thread is left free at least as long as a
 between two renders, and the drag's moves are handled (their poses sent to the audio path)
 as they come, each frame drawing the newest of them. A panel that shows the moving pose (the pose
 fields) updates through :meth:`SceneCanvas.with_frame` then: just before a frame is asked for, so its
-repaint shares that frame's composition of the window instead of costing one of its own (with
-software GL ~10 ms of the GUI thread each, while the next move and the release wait).
+repaint shares that frame's composition of the window instead of costing one of its own (a
+``GLWidgetCanvas`` with software GL: ~10 ms of the GUI thread each, while the next move and the release wait).
 """
 
 from __future__ import annotations
@@ -42,7 +52,9 @@ from collections import deque
 from typing import Callable
 
 from pyvistaqt import QtInteractor
-from PySide6 import QtCore
+from PySide6 import QtCore, QtGui
+
+from avgs_viewer.native_view import NativeInteractor, native_view_supported
 
 HOLD_MAX_S = 0.1
 "Longest a repaint waits for the audio path (so a drag still draws while filters keep coming)."
@@ -50,16 +62,16 @@ DRAG_FRAME_S = 1 / 30
 "During a handle drag, the least time from the end of one render to the start of the next."
 
 
-class SceneCanvas(QtInteractor):
-    """A ``QtInteractor`` with no render timer whose renders are coalesced into repaints.
+class SceneCanvas:
+    """The 3D view, either kind (:class:`NativeCanvas`, :class:`GLWidgetCanvas`): a pyvista plotter with no render
+    timer whose renders are coalesced into repaints.
 
     ``frames`` counts the renders drawn (paints); ``frame_times`` keeps the
     ``time.perf_counter()`` of the last 1024, for the frame-rate benchmark, and
     ``paint_seconds`` how long each of them took (the VTK render into the widget).
     """
 
-    def __init__(self, parent=None, **kwargs):
-        super().__init__(parent, auto_update=False, **kwargs)
+    def _coalesce_renders(self) -> None:
         self.frames = 0
         self.frame_times: deque[float] = deque(maxlen=1024)
         self.paint_seconds: deque[float] = deque(maxlen=1024)
@@ -165,16 +177,17 @@ class SceneCanvas(QtInteractor):
             iren.EnableRenderOn()
         super().close()
 
-    def paintGL(self) -> None:  # noqa: N802
+    def _paint(self, draw: Callable[[], None]) -> None:
+        """The widget's paint: ``draw`` (the VTK render into it) unless the audio path holds the frame."""
         iren = self._vtk_iren
         if iren is None:  # closed
-            return super().paintGL()
+            return draw()
         if self._waiting():  # sound first: the widget keeps its last frame until the filter is made and heard
             return
         iren.EnableRenderOn()
         t0 = time.perf_counter()
         try:
-            super().paintGL()
+            draw()
         finally:
             iren.EnableRenderOff()
         t1 = time.perf_counter()
@@ -182,3 +195,38 @@ class SceneCanvas(QtInteractor):
         self.frames += 1
         self.frame_times.append(t1)
         self.paint_seconds.append(t1 - t0)
+
+
+class GLWidgetCanvas(SceneCanvas, QtInteractor):
+    """pyvistaqt's ``QOpenGLWidget`` view (Wayland): VTK renders into a framebuffer that Qt composes into the window."""
+
+    def __init__(self, parent=None, **kwargs):
+        super().__init__(parent, auto_update=False, **kwargs)
+        self._coalesce_renders()
+
+    def paintGL(self) -> None:  # noqa: N802
+        self._paint(super().paintGL)
+
+    def grab_view(self) -> QtGui.QImage:
+        """What the view shows: the widget's framebuffer."""
+        return self.grabFramebuffer()
+
+
+class NativeCanvas(SceneCanvas, NativeInteractor):
+    """The native-window view (X11, Windows, macOS): VTK draws into the view's own window."""
+
+    def __init__(self, parent=None, **kwargs):
+        super().__init__(parent, **kwargs)
+        self._coalesce_renders()
+
+    def paintEvent(self, ev) -> None:  # noqa: N802
+        self._paint(lambda: NativeInteractor.paintEvent(self, ev))
+
+    def grab_view(self) -> QtGui.QImage:
+        """What the view shows: its window's pixels as the window system has them."""
+        return self.screen().grabWindow(int(self.winId())).toImage()
+
+
+def make_canvas(parent=None) -> SceneCanvas:
+    """The window's 3D view: a native window where the platform allows (:func:`native_view_supported`)."""
+    return NativeCanvas(parent) if native_view_supported() else GLWidgetCanvas(parent)

@@ -29,7 +29,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from . import audio, export, file_dialogs
 from .audio_path import AudioPath
-from .canvas import SceneCanvas
+from .canvas import make_canvas
 from .control_panel import ControlPanel
 from .audition import Audition
 from .drag import DragController
@@ -81,7 +81,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.loader.loaded.connect(self._on_loaded)
         self.loader.load_failed.connect(self._on_load_failed)
 
-        self.plotter = SceneCanvas(self)  # no render timer; renders coalesced into repaints
+        self.plotter = make_canvas(self)  # no render timer; renders coalesced into repaints
         self.plotter.setMinimumSize(320, 240)  # the window's minimum stays under 700 px tall (a 1366 x 768 screen)
         self.mouse = ViewMouse(self.plotter)  # handle drags, and the X pointer during one
         self.plotter.installEventFilter(self)

@@ -9,14 +9,15 @@ import pytest
 pytest.importorskip("pytestqt")
 import pyvista as pv  # noqa: E402
 
-from avgs_viewer.canvas import HOLD_MAX_S, SceneCanvas  # noqa: E402
+from avgs_viewer.canvas import HOLD_MAX_S, GLWidgetCanvas, NativeCanvas  # noqa: E402
+from avgs_viewer.native_view import native_view_supported  # noqa: E402
 
 pytestmark = pytest.mark.gui
 
 
-@pytest.fixture
-def canvas(qtbot):
-    c = SceneCanvas()
+@pytest.fixture(params=[NativeCanvas, GLWidgetCanvas], ids=["native", "opengl-widget"])
+def canvas(qtbot, request):
+    c = request.param()
     qtbot.addWidget(c)
     c.add_mesh(pv.Sphere())
     c.resize(320, 240)
@@ -105,3 +106,25 @@ def test_the_release_does_not_compose_the_window_while_the_sound_is_made(qtbot, 
     assert len(swaps) == swapped and canvas.frames == before  # not even a composition
     busy["on"] = False
     qtbot.waitUntil(lambda: canvas.frames == before + 1, timeout=2_000)  # drawn once the filter is made
+
+
+def test_the_view_is_a_native_window_where_vtk_can_draw_into_one(monkeypatch):
+    monkeypatch.delenv("AVGS_VIEWER_VIEW", raising=False)
+    assert [native_view_supported(p) for p in ("xcb", "windows", "cocoa")] == [True, True, True]
+    assert not native_view_supported("wayland") and not native_view_supported("offscreen")
+    monkeypatch.setenv("AVGS_VIEWER_VIEW", "opengl-widget")
+    assert not native_view_supported("xcb")
+
+
+def test_a_closed_native_view_lets_go_of_its_render_window(qtbot):
+    """Its render window (and with it VTK's connection to the X display) goes with the close, not at the
+    interpreter's exit, when the display may be gone and Xlib ends the process with status 1."""
+    c = NativeCanvas()
+    qtbot.addWidget(c)
+    c.add_mesh(pv.Sphere())
+    c.show()
+    qtbot.waitUntil(lambda: c.frames > 0, timeout=10_000)
+    rw = c.GetRenderWindow()
+    assert rw.GetClassName() == "vtkXOpenGLRenderWindow"  # drawn into the window, whatever VTK_DEFAULT_OPENGL_WINDOW
+    c.close()
+    assert rw.GetReferenceCount() == 1  # only this test's own reference is left

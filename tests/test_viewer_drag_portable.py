@@ -67,9 +67,12 @@ def _portable_window(qtbot, monkeypatch, settle_ms: int):
     return w
 
 
-def test_portable_drag_sends_each_pose_before_the_next_render(qtbot, x, monkeypatch):
+@pytest.mark.parametrize("view", ["native", "opengl-widget"])
+def test_portable_drag_sends_each_pose_before_the_next_render(qtbot, x, monkeypatch, view):
+    monkeypatch.setenv("AVGS_VIEWER_VIEW", view)  # both kinds of 3D view (avgs_viewer.canvas)
     w = _portable_window(qtbot, monkeypatch, 200)
     try:
+        assert type(w.plotter).__name__ == {"native": "NativeCanvas", "opengl-widget": "GLWidgetCanvas"}[view]
         log = _Log(w)
         start = screen_xy(w, w.state.listener)
         bounds = np.asarray(w.state.bounds)

@@ -57,7 +57,7 @@ def heard_ild(qtbot, w: MainWindow, seconds: float = 1.0) -> float:
 def blue_pixels_near(w: MainWindow, world, reach: int = 8) -> int:
     """Pixels of the listener's blue within ``reach`` of ``world``'s projection in the view as drawn."""
     w.plotter.render_now()
-    img = w.plotter.grabFramebuffer()  # what the widget shows
+    img = w.plotter.grab_view()  # what the view shows
     img = img.convertToFormat(img.Format.Format_RGB888)
     arr = np.array(img.constBits(), dtype=np.uint8)
     arr = arr.reshape(img.height(), img.bytesPerLine())[:, : 3 * img.width()].reshape(img.height(), img.width(), 3)
