@@ -20,7 +20,6 @@ import os
 import sys
 from typing import Any
 
-import pyvista
 from pyvista import global_theme
 from pyvista.plotting import BasePlotter
 from pyvista.plotting.render_window_interactor import RenderWindowInteractor
