@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import time
 
-from PySide6 import QtCore, QtGui, QtWidgets
+from PySide6 import QtGui, QtWidgets
 
 FLOOR_DB = -60.0
 TICK_DB = 12.0

@@ -11,7 +11,7 @@ import torch
 from avgs import dsp
 from avgs.acoustics.reverb_tail import BLOCK_FRAMES, ReverbTail, decay_per_frame, tail_power, tail_power_recursive
 from avgs.acoustics.synthesis import Masks, binaural_waveform, ear_magnitudes
-from avgs.config import STFT, SynthesisConfig, TrainConfig
+from avgs.config import STFT, TrainConfig
 
 
 HOP_S = STFT.hop_length / STFT.sample_rate

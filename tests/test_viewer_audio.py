@@ -14,7 +14,7 @@ import soundfile as sf
 from avgs.io.checkpoint import save_checkpoint, untrained_checkpoint
 from avgs.render.renderer import SceneRenderer
 from avgs_viewer import audio
-from avgs_viewer.audio import ClipSpectrum, StreamEngine, filter_levels
+from avgs_viewer.audio import StreamEngine, filter_levels
 from avgs_viewer.sound_output import AudioOutput
 from avgs_viewer.state import ViewerState
 from avgs_viewer.worker import LiveAudio
