@@ -60,6 +60,8 @@ HOLD_MAX_S = 0.1
 "Longest a repaint waits for the audio path (so a drag still draws while filters keep coming)."
 DRAG_FRAME_S = 1 / 30
 "During a handle drag, the least time from the end of one render to the start of the next."
+SPLIT_DRAG_FRAMES = True
+"A native view shows a drag's frame one turn of the event loop after rendering it (:class:`NativeCanvas`)."
 
 
 class SceneCanvas:
@@ -133,7 +135,14 @@ class SceneCanvas:
         self.update()
 
     def _waiting(self) -> bool:
-        """True when this paint should wait: the audio path is busy and has not had HOLD_MAX_S yet."""
+        """True when this paint should wait (:meth:`_held`); then the paint is asked for again 2 ms later."""
+        if not self._held():
+            return False
+        self._retry.start()  # ask again in 2 ms
+        return True
+
+    def _held(self) -> bool:
+        """True while the audio path is busy and has not had HOLD_MAX_S yet (its clock starts at the first call)."""
         hold, retry = getattr(self, "hold", None), getattr(self, "_retry", None)  # None while QtInteractor builds
         if hold is None or retry is None or not hold():
             self._held_since = None
@@ -141,10 +150,7 @@ class SceneCanvas:
         now = time.perf_counter()
         if self._held_since is None:
             self._held_since = now
-        if now - self._held_since >= HOLD_MAX_S:  # waited long enough: paint (the paint starts the clock again)
-            return False
-        retry.start()  # ask again in 2 ms
-        return True
+        return now - self._held_since < HOLD_MAX_S  # waited long enough: paint (the paint starts the clock again)
 
     def render(self) -> None:
         """Ask for a repaint: the scene is drawn once at the next paint, however many calls came before."""
@@ -213,14 +219,63 @@ class GLWidgetCanvas(SceneCanvas, QtInteractor):
 
 
 class NativeCanvas(SceneCanvas, NativeInteractor):
-    """The native-window view (X11, Windows, macOS): VTK draws into the view's own window."""
+    """The native-window view (X11, Windows, macOS): VTK draws into the view's own window.
+
+    A handle drag's frame is drawn in two turns of the event loop (:data:`SPLIT_DRAG_FRAMES`): the render, then
+    the blit and swap that show it (:meth:`_show_frame`), which is where software GL rasterizes, on every core.
+    Input that came during the render (the release) is handled in between, and while the audio path makes the
+    released pose's filter the frame waits to be shown, as a paint waits (:meth:`SceneCanvas._waiting`).
+    """
 
     def __init__(self, parent=None, **kwargs):
         super().__init__(parent, **kwargs)
         self._coalesce_renders()
+        self._swap_pending = False  # a drag's frame rendered and not yet shown
+        self._swap = QtCore.QTimer(self)
+        self._swap.setSingleShot(True)
+        self._swap.setInterval(0)
+        self._swap.timeout.connect(self._show_frame)
 
     def paintEvent(self, ev) -> None:  # noqa: N802
-        self._paint(lambda: NativeInteractor.paintEvent(self, ev))
+        self._paint(lambda: self._draw(ev))
+
+    def _draw(self, ev) -> None:
+        self._swap_pending = False  # a frame rendered and not yet shown: this one replaces it
+        self._swap.stop()
+        rw = self._RenderWindow
+        if not (SPLIT_DRAG_FRAMES and self.dragging) or rw is None:
+            NativeInteractor.paintEvent(self, ev)
+            return
+        rw.SwapBuffersOff()
+        self._in_paint = True
+        try:
+            self._Iren.Render()
+        finally:
+            self._in_paint = False
+            rw.SwapBuffersOn()
+        self._swap_pending = True
+        self._swap.start(0)
+
+    def _show_frame(self) -> None:
+        """Blit and swap the drag's frame that :meth:`_draw` rendered, unless the audio path holds it (then 2 ms later)."""
+        rw = self._RenderWindow
+        if not self._swap_pending or rw is None:
+            self._swap_pending = False
+            return
+        if self._held():  # its own retry: a repaint asked for now would render the frame again
+            self._swap.start(2)
+            return
+        self._swap_pending = False
+        t0 = time.perf_counter()
+        rw.Frame()  # with SwapBuffers on: the render's blits again, then the swap
+        if self.paint_seconds:  # the frame's paint: its render and its showing
+            self.paint_seconds[-1] += time.perf_counter() - t0
+        self.frameSwapped.emit()
+
+    def close(self) -> None:
+        self._swap.stop()
+        self._swap_pending = False
+        super().close()
 
     def grab_view(self) -> QtGui.QImage:
         """What the view shows: its window's pixels as the window system has them."""

@@ -128,3 +128,33 @@ def test_a_closed_native_view_lets_go_of_its_render_window(qtbot):
     assert rw.GetClassName() == "vtkXOpenGLRenderWindow"  # drawn into the window, whatever VTK_DEFAULT_OPENGL_WINDOW
     c.close()
     assert rw.GetReferenceCount() == 1  # only this test's own reference is left
+
+
+def test_a_native_drag_frame_is_shown_after_the_sound_is_made(qtbot):
+    """During a handle drag the native view renders a frame, then shows it (blit and swap: where software GL
+    rasterizes, on every core) a turn of the event loop later, and not while the audio path makes a filter."""
+    import avgs_viewer.canvas as canvas_module
+
+    c = NativeCanvas()
+    qtbot.addWidget(c)
+    c.add_mesh(pv.Sphere())
+    c.resize(320, 240)
+    c.show()
+    qtbot.waitUntil(lambda: c.frames > 0, timeout=10_000)
+    qtbot.wait(100)
+    swaps = []
+    c.frameSwapped.connect(lambda: swaps.append(time.perf_counter()))
+    c.set_dragging(True)
+    qtbot.wait(int(canvas_module.DRAG_FRAME_S * 1000) + 20)  # past the frame gate
+    before = c.frames
+    released = {"filter_made": False}
+    c.hold = lambda: c.frames > before and not released["filter_made"]  # busy from the frame's render on
+    c.render()
+    qtbot.waitUntil(lambda: c.frames == before + 1, timeout=2_000)  # rendered ...
+    qtbot.wait(int(HOLD_MAX_S * 1000 * 0.5))  # ... and the release's filter is being made
+    assert swaps == []  # held: not shown, not rasterized
+    released["filter_made"] = True
+    qtbot.waitUntil(lambda: len(swaps) == 1, timeout=2_000)
+    assert c.frames == before + 1  # shown without another render
+    c.set_dragging(False)
+    c.close()
