@@ -137,6 +137,9 @@ def run_window(args: argparse.Namespace, scene: Path) -> int:
     # never stalls on a busy one (two threads waiting on each other turned 7 ms into 600 ms under load).
     torch.set_num_threads(1)
 
+    from .native_view import prefer_xwayland
+
+    prefer_xwayland()  # a Wayland session with XWayland: the native view (avgs_viewer/canvas.py)
     app = QtWidgets.QApplication.instance() or QtWidgets.QApplication([PROG])
     from .window import MainWindow
 

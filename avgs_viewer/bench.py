@@ -208,7 +208,9 @@ def drive(w, gui: GuiCall, x, n: int = 30, idle_s: float = 5.0, orbit_s: float =
     time.sleep(0.5)
     gui(lambda: (w.view.camera_home(), w.plotter.render()))
     followed = gui(lambda: bool(w.mouse.follower))
-    return {"pointer_follow": followed, "drag_to_audio": _summary(latency), "release_delivery": _summary(delivery),
+    return {"pointer_follow": followed, "drag_to_audio": _summary(latency),
+            "drag_to_audio_each_ms": [round(1e3 * t, 3) for t in latency],  # in drag order: runs can be pooled
+            "release_delivery": _summary(delivery),
             "drag_to_full_render": _summary(full) if refines else None, "full_render_missed": full_missed,
             "pose_submitted": _summary(submitted), "filter_ready": _summary(ready), "paint": _summary(paints), "drags": n,
             "missed": missed, "max_handle_offset": max(offsets) if offsets else None,

@@ -42,6 +42,9 @@ as they come, each frame drawing the newest of them. A panel that shows the movi
 fields) updates through :meth:`SceneCanvas.with_frame` then: just before a frame is asked for, so its
 repaint shares that frame's composition of the window instead of costing one of its own (a
 ``GLWidgetCanvas`` with software GL: ~10 ms of the GUI thread each, while the next move and the release wait).
+A ``NativeCanvas`` also splits a drag's frame in two turns of the event loop: the render, then its showing
+(the blit and swap, where software GL rasterizes), so a release that comes during the render is handled
+before the showing, and the showing waits, as a paint does, while the released pose's filter is made.
 """
 
 from __future__ import annotations
@@ -280,6 +283,19 @@ class NativeCanvas(SceneCanvas, NativeInteractor):
     def grab_view(self) -> QtGui.QImage:
         """What the view shows: its window's pixels as the window system has them."""
         return self.screen().grabWindow(int(self.winId())).toImage()
+
+    def grab(self, rect=None) -> QtGui.QPixmap:  # noqa: A003 (QWidget's name)
+        """``QWidget.grab``: the scene rendered and read back from VTK (Qt cannot draw a window that GL draws into
+        into a pixmap: it would hold whatever was in memory); ``rect`` in the widget's coordinates."""
+        img = self.screenshot(return_img=True)  # [h, w, 3] uint8, device pixels
+        h, w = img.shape[:2]
+        qimg = QtGui.QImage(img.tobytes(), w, h, 3 * w, QtGui.QImage.Format.Format_RGB888).copy()
+        qimg.setDevicePixelRatio(w / max(1, self.width()))
+        pix = QtGui.QPixmap.fromImage(qimg)
+        if rect is not None and rect.isValid():
+            r = qimg.devicePixelRatio()
+            pix = pix.copy(QtCore.QRect(round(rect.x() * r), round(rect.y() * r), round(rect.width() * r), round(rect.height() * r)))
+        return pix
 
 
 def make_canvas(parent=None) -> SceneCanvas:

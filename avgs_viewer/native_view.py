@@ -59,6 +59,19 @@ def _window_system_render_window():
     return vtkRenderWindow()
 
 
+def prefer_xwayland(environ=os.environ) -> bool:
+    """On a Wayland session that also runs XWayland (``WAYLAND_DISPLAY`` and ``DISPLAY`` both set) and names no Qt
+    platform itself, ask Qt for ``xcb``: the window then gets the native view, whose frames cost less with software
+    GL than the ``QOpenGLWidget`` a Wayland window must use. ``QT_QPA_PLATFORM=wayland`` keeps Wayland. Sets the
+    variable (before the ``QApplication`` is made) and says whether it did."""
+    if environ.get("QT_QPA_PLATFORM") or not environ.get("WAYLAND_DISPLAY") or not environ.get("DISPLAY"):
+        return False
+    if environ.get(NATIVE_VIEW_ENV, "").strip().lower() in ("opengl-widget", "qopenglwidget"):
+        return False
+    environ["QT_QPA_PLATFORM"] = "xcb"
+    return True
+
+
 @contextlib.contextmanager
 def _no_base_plotter_init():
     """``QWidget.__init__`` continues the cooperative ``super()`` chain into ``BasePlotter.__init__``

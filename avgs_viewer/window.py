@@ -29,7 +29,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from . import audio, export, file_dialogs
 from .audio_path import AudioPath
-from .canvas import make_canvas
+from .canvas import NativeCanvas, make_canvas
 from .control_panel import ControlPanel
 from .audition import Audition
 from .drag import DragController
@@ -463,6 +463,18 @@ class MainWindow(QtWidgets.QMainWindow):
         return super().eventFilter(obj, event)
 
     # ------------------------------------------------------------------ closing
+    def grab(self, rect: QtCore.QRect = QtCore.QRect(0, 0, -1, -1)) -> QtGui.QPixmap:  # noqa: B008
+        """``QWidget.grab`` with the 3D view's pixels in it: Qt leaves a native view's area unpainted
+        (:meth:`avgs_viewer.canvas.NativeCanvas.grab` reads the view back from VTK)."""
+        pix = super().grab(rect)
+        view = self.plotter
+        if isinstance(view, NativeCanvas) and view.isVisible():
+            origin = rect.topLeft() if rect.isValid() else QtCore.QPoint(0, 0)
+            painter = QtGui.QPainter(pix)
+            painter.drawPixmap(view.mapTo(self, QtCore.QPoint(0, 0)) - origin, view.grab())
+            painter.end()
+        return pix
+
     def closeEvent(self, event: QtGui.QCloseEvent) -> None:  # noqa: N802
         self.meter_timer.stop()
         self.head_tracker.stop()

@@ -8,6 +8,7 @@ import pytest
 
 pytest.importorskip("pytestqt")
 import pyvista as pv  # noqa: E402
+from PySide6 import QtGui  # noqa: E402
 
 from avgs_viewer.canvas import HOLD_MAX_S, GLWidgetCanvas, NativeCanvas  # noqa: E402
 from avgs_viewer.native_view import native_view_supported  # noqa: E402
@@ -158,3 +159,42 @@ def test_a_native_drag_frame_is_shown_after_the_sound_is_made(qtbot):
     assert c.frames == before + 1  # shown without another render
     c.set_dragging(False)
     c.close()
+
+
+def test_a_wayland_session_with_xwayland_gets_the_native_view():
+    from avgs_viewer.native_view import prefer_xwayland
+
+    env = {"WAYLAND_DISPLAY": "wayland-0", "DISPLAY": ":0"}
+    assert prefer_xwayland(env) and env["QT_QPA_PLATFORM"] == "xcb"
+    for kept in ({"WAYLAND_DISPLAY": "wayland-0"},  # no XWayland: Qt's Wayland, the QOpenGLWidget view
+                 {"WAYLAND_DISPLAY": "wayland-0", "DISPLAY": ":0", "QT_QPA_PLATFORM": "wayland"},  # the user's choice
+                 {"WAYLAND_DISPLAY": "wayland-0", "DISPLAY": ":0", "AVGS_VIEWER_VIEW": "opengl-widget"},
+                 {"DISPLAY": ":0"}):  # X11: xcb already
+        before = dict(kept)
+        assert not prefer_xwayland(kept) and kept == before
+
+
+def test_a_grab_of_the_window_holds_the_native_views_pixels(qtbot):
+    """``QWidget.grab`` (and pytest-qt's ``qtbot.screenshot``) of the window shows the 3D view where it is: Qt alone
+    would leave a native view's area with whatever was in memory."""
+    import numpy as np
+    from real_events import demo_window
+
+    w = demo_window(qtbot)
+    try:
+        qtbot.wait(300)
+        view = w.plotter
+        assert isinstance(view, NativeCanvas)
+        img = w.grab().toImage().convertToFormat(QtGui.QImage.Format.Format_RGB888)
+        a = np.array(img.constBits(), dtype=np.uint8).reshape(img.height(), img.bytesPerLine())
+        window = a[:, : 3 * img.width()].reshape(img.height(), img.width(), 3).astype(int)
+        scene = np.asarray(view.screenshot(return_img=True), dtype=int)  # the scene read back from VTK
+        o = view.mapTo(w, view.rect().topLeft())
+        grabbed = window[o.y(): o.y() + scene.shape[0], o.x(): o.x() + scene.shape[1]]
+        assert grabbed.shape == scene.shape
+        assert np.mean(np.abs(grabbed - scene)) < 8  # the same scene in the view's place (up to a 16-bit screen's rounding)
+        assert len(np.unique(scene.reshape(-1, 3), axis=0)) > 20  # a scene, not a blank area
+        below = window[o.y() + scene.shape[0] + 5:, o.x(): o.x() + scene.shape[1]]
+        assert np.mean(np.abs(below[:20] - scene[-20:])) > 5  # the panel under the view is not the view
+    finally:
+        w.close()
