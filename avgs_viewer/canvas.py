@@ -227,7 +227,7 @@ class NativeCanvas(SceneCanvas, NativeInteractor):
     A handle drag's frame is drawn in two turns of the event loop (:data:`SPLIT_DRAG_FRAMES`): the render, then
     the blit and swap that show it (:meth:`_show_frame`), which is where software GL rasterizes, on every core.
     Input that came during the render (the release) is handled in between, and while the audio path makes the
-    released pose's filter the frame waits to be shown, as a paint waits (:meth:`SceneCanvas._waiting`).
+    released pose's filter the frame waits to be shown, as a paint waits (:meth:`SceneCanvas._held`).
     """
 
     def __init__(self, parent=None, **kwargs):

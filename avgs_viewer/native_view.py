@@ -10,7 +10,8 @@ swaps, and the rest of the window repaints by raster copies of its own areas.
 
 A native render window needs a window system VTK can draw into: X11 (XWayland included),
 Windows or macOS; on a Wayland display the window keeps pyvistaqt's ``QOpenGLWidget``
-(:func:`native_view_supported`).
+(:func:`native_view_supported`), and a Wayland session that also runs XWayland is given Qt's
+``xcb`` platform unless it names one (:func:`prefer_xwayland`).
 """
 
 from __future__ import annotations
@@ -89,7 +90,6 @@ class NativeInteractor(QVTKRenderWindowInteractor, BasePlotter):
     ``QOpenGLWidget``). ``frameSwapped`` is emitted after each render reaches the window."""
 
     frameSwapped = QtCore.Signal()  # noqa: N815 (QOpenGLWidget's name)
-    _render_requested = QtCore.Signal()
 
     def __init__(self, parent=None, multi_samples: int | None = None, **kwargs: Any) -> None:
         with _no_base_plotter_init():

@@ -124,7 +124,9 @@ class _Paints(QtCore.QObject):
 
 def test_during_a_drag_the_pose_fields_repaint_only_with_the_views_frames(qtbot, x, monkeypatch):
     """The listener's fields follow a drag, but each of their repaints comes with a frame of the 3D view (the same
-    composition of the window, SceneCanvas.with_frame), and after the release they show where it ended."""
+    composition of the window, SceneCanvas.with_frame), and after the release they show where it ended. On the
+    QOpenGLWidget view, whose window Qt composes at every repaint (a native view's panels repaint on their own)."""
+    monkeypatch.setenv("AVGS_VIEWER_VIEW", "opengl-widget")
     w = _portable_window(qtbot, monkeypatch, 300)
     try:
         paints = _Paints(w)
