@@ -462,7 +462,6 @@ class MainWindow(QtWidgets.QMainWindow):
                     return taken
         return super().eventFilter(obj, event)
 
-    # ------------------------------------------------------------------ closing
     def grab(self, rect: QtCore.QRect = QtCore.QRect(0, 0, -1, -1)) -> QtGui.QPixmap:  # noqa: B008
         """``QWidget.grab`` with the 3D view's pixels in it: Qt leaves a native view's area unpainted
         (:meth:`avgs_viewer.canvas.NativeCanvas.grab` reads the view back from VTK)."""
@@ -475,6 +474,7 @@ class MainWindow(QtWidgets.QMainWindow):
             painter.end()
         return pix
 
+    # ------------------------------------------------------------------ closing
     def closeEvent(self, event: QtGui.QCloseEvent) -> None:  # noqa: N802
         self.meter_timer.stop()
         self.head_tracker.stop()
