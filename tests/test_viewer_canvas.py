@@ -184,7 +184,8 @@ def test_a_grab_of_the_window_holds_the_native_views_pixels(qtbot):
     try:
         qtbot.wait(300)
         view = w.plotter
-        assert isinstance(view, NativeCanvas)
+        if not isinstance(view, NativeCanvas):
+            pytest.skip("the window holds the QOpenGLWidget view (AVGS_VIEWER_VIEW or the platform)")
         img = w.grab().toImage().convertToFormat(QtGui.QImage.Format.Format_RGB888)
         a = np.array(img.constBits(), dtype=np.uint8).reshape(img.height(), img.bytesPerLine())
         window = a[:, : 3 * img.width()].reshape(img.height(), img.width(), 3).astype(int)
