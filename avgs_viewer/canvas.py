@@ -250,11 +250,9 @@ class NativeCanvas(SceneCanvas, NativeInteractor):
             NativeInteractor.paintEvent(self, ev)
             return
         rw.SwapBuffersOff()
-        self._in_paint = True
         try:
-            self._Iren.Render()
+            self.render_into_window()
         finally:
-            self._in_paint = False
             rw.SwapBuffersOn()
         self._swap_pending = True
         self._swap.start(0)

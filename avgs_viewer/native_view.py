@@ -35,12 +35,16 @@ NATIVE_VIEW_ENV = "AVGS_VIEWER_VIEW"
 "``native`` or ``opengl-widget``: which 3D view the window holds (default: native where the platform allows)."
 
 
+def _widget_asked(environ) -> bool:
+    """``AVGS_VIEWER_VIEW`` asks for pyvistaqt's ``QOpenGLWidget`` view."""
+    return environ.get(NATIVE_VIEW_ENV, "").strip().lower() in ("opengl-widget", "qopenglwidget")
+
+
 def native_view_supported(platform_name: str | None = None) -> bool:
     """Whether the 3D view can be a native window VTK draws into: Qt's platform is X11 (``xcb``), Windows or macOS.
 
     ``AVGS_VIEWER_VIEW=opengl-widget`` asks for pyvistaqt's ``QOpenGLWidget`` view whatever the platform."""
-    choice = os.environ.get(NATIVE_VIEW_ENV, "").strip().lower()
-    if choice in ("opengl-widget", "qopenglwidget"):
+    if _widget_asked(os.environ):
         return False
     if platform_name is None:
         app = QtGui.QGuiApplication.instance()
@@ -67,7 +71,7 @@ def prefer_xwayland(environ=os.environ) -> bool:
     variable (before the ``QApplication`` is made) and says whether it did."""
     if environ.get("QT_QPA_PLATFORM") or not environ.get("WAYLAND_DISPLAY") or not environ.get("DISPLAY"):
         return False
-    if environ.get(NATIVE_VIEW_ENV, "").strip().lower() in ("opengl-widget", "qopenglwidget"):
+    if _widget_asked(environ):
         return False
     environ["QT_QPA_PLATFORM"] = "xcb"
     return True
@@ -115,12 +119,16 @@ class NativeInteractor(QVTKRenderWindowInteractor, BasePlotter):
     def paintEvent(self, ev) -> None:  # noqa: N802
         if self._RenderWindow is None:
             return
+        self.render_into_window()
+        self.frameSwapped.emit()
+
+    def render_into_window(self) -> None:
+        """The interactor's render into the view's window (the paint's; swapped unless ``SwapBuffers`` is off)."""
         self._in_paint = True
         try:
             self._Iren.Render()
         finally:
             self._in_paint = False
-        self.frameSwapped.emit()
 
     def render(self) -> None:
         if getattr(self, "_closed", False):
